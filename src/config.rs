@@ -1,0 +1,226 @@
+//! Configuration: `config/default.toml` (compiled in, the single source of defaults), overlaid
+//! by an optional user file, overlaid by `--set section.key=value` pairs, then validated once.
+//! Each stage receives only its own `*Params` section.
+
+use crate::error::{Error, Result};
+use serde::Deserialize;
+use std::path::Path;
+
+/// The compiled-in default configuration.
+pub const DEFAULT_TOML: &str = include_str!("../config/default.toml");
+
+/// Tiling parameters.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TilingParams {
+    /// Core tile edge, metres.
+    pub tile_size_m: f64,
+    /// Overlap buffer width, metres.
+    pub buffer_m: f64,
+    /// Smallest core edge quadtree splitting may produce, metres.
+    pub min_tile_size_m: f64,
+}
+
+/// Pipeline resource parameters.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PipelineParams {
+    /// Memory budget, MiB.
+    pub memory_budget_mb: u64,
+    /// Worker threads (0 = cores).
+    pub threads: usize,
+    /// Spill directory ("" = inside the output directory).
+    pub spill_dir: String,
+}
+
+/// Output parameters.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OutputParams {
+    /// "laz" or "las".
+    pub format: String,
+    /// "auto" or a point format number as a string or integer.
+    pub point_format: toml::Value,
+}
+
+/// Stage selection.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StagesParams {
+    /// Stage names in order.
+    pub run: Vec<String>,
+}
+
+/// The whole validated configuration.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Config {
+    /// `[tiling]`
+    pub tiling: TilingParams,
+    /// `[pipeline]`
+    pub pipeline: PipelineParams,
+    /// `[output]`
+    pub output: OutputParams,
+    /// `[stages]`
+    pub stages: StagesParams,
+}
+
+impl Config {
+    /// Loads defaults, then `user_file` (if any), then `overrides` (`section.key=value`).
+    pub fn load(user_file: Option<&Path>, overrides: &[String]) -> Result<Config> {
+        let mut root: toml::Value = toml::from_str(DEFAULT_TOML)
+            .map_err(|e| Error::Config(format!("built-in defaults: {e}")))?;
+        if let Some(path) = user_file {
+            let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+            let user: toml::Value = toml::from_str(&text)
+                .map_err(|e| Error::Config(format!("{}: {e}", path.display())))?;
+            merge(&mut root, user);
+        }
+        for item in overrides {
+            apply_override(&mut root, item)?;
+        }
+        let cfg: Config = root
+            .try_into()
+            .map_err(|e: toml::de::Error| Error::Config(e.to_string()))?;
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    /// The defaults alone.
+    pub fn defaults() -> Result<Config> {
+        Config::load(None, &[])
+    }
+
+    /// Output point format override, `None` for "auto".
+    pub fn output_point_format(&self) -> Result<Option<u8>> {
+        match &self.output.point_format {
+            toml::Value::String(s) if s == "auto" => Ok(None),
+            toml::Value::String(s) => s
+                .parse::<u8>()
+                .ok()
+                .filter(|n| *n <= 10)
+                .map(Some)
+                .ok_or_else(|| {
+                    Error::Config(format!("output.point_format: '{s}' is not auto or 0..=10"))
+                }),
+            toml::Value::Integer(n) if (0..=10).contains(n) => Ok(Some(*n as u8)),
+            other => Err(Error::Config(format!(
+                "output.point_format: {other} is not \"auto\" or 0..=10"
+            ))),
+        }
+    }
+
+    fn validate(&self) -> Result<()> {
+        let t = &self.tiling;
+        if !(t.tile_size_m.is_finite() && t.tile_size_m > 0.0) {
+            return Err(Error::Config(format!(
+                "tiling.tile_size_m must be a positive number, got {}",
+                t.tile_size_m
+            )));
+        }
+        if !(t.buffer_m.is_finite() && t.buffer_m >= 0.0 && t.buffer_m < t.tile_size_m) {
+            return Err(Error::Config(format!(
+                "tiling.buffer_m must be in [0, tile_size_m), got {}",
+                t.buffer_m
+            )));
+        }
+        if !(t.min_tile_size_m.is_finite() && t.min_tile_size_m > 0.0) {
+            return Err(Error::Config(
+                "tiling.min_tile_size_m must be positive".into(),
+            ));
+        }
+        if self.pipeline.memory_budget_mb < 64 {
+            return Err(Error::Config(format!(
+                "pipeline.memory_budget_mb must be at least 64, got {}",
+                self.pipeline.memory_budget_mb
+            )));
+        }
+        if !matches!(self.output.format.as_str(), "laz" | "las") {
+            return Err(Error::Config(format!(
+                "output.format must be \"laz\" or \"las\", got \"{}\"",
+                self.output.format
+            )));
+        }
+        self.output_point_format()?;
+        if self.stages.run.is_empty() {
+            return Err(Error::Config(
+                "stages.run must name at least one stage".into(),
+            ));
+        }
+        Ok(())
+    }
+}
+
+fn merge(base: &mut toml::Value, over: toml::Value) {
+    match (base, over) {
+        (toml::Value::Table(b), toml::Value::Table(o)) => {
+            for (k, v) in o {
+                match b.get_mut(&k) {
+                    Some(existing) if existing.is_table() && v.is_table() => merge(existing, v),
+                    _ => {
+                        b.insert(k, v);
+                    }
+                }
+            }
+        }
+        (b, o) => *b = o,
+    }
+}
+
+/// Applies `section.key=value`; the value is parsed as a TOML literal, else taken as a string.
+fn apply_override(root: &mut toml::Value, item: &str) -> Result<()> {
+    let (path, raw) = item
+        .split_once('=')
+        .ok_or_else(|| Error::Config(format!("--set '{item}': expected section.key=value")))?;
+    let value: toml::Value = toml::from_str::<toml::Table>(&format!("v = {raw}"))
+        .ok()
+        .and_then(|mut t| t.remove("v"))
+        .unwrap_or_else(|| toml::Value::String(raw.to_string()));
+    let mut node = root;
+    let parts: Vec<&str> = path.trim().split('.').collect();
+    for (i, part) in parts.iter().enumerate() {
+        let table = node
+            .as_table_mut()
+            .ok_or_else(|| Error::Config(format!("--set '{item}': '{part}' is not a section")))?;
+        if i + 1 == parts.len() {
+            if !table.contains_key(*part) {
+                return Err(Error::Config(format!(
+                    "--set '{item}': unknown key '{path}'"
+                )));
+            }
+            table.insert((*part).to_string(), value);
+            return Ok(());
+        }
+        node = table
+            .get_mut(*part)
+            .ok_or_else(|| Error::Config(format!("--set '{item}': unknown section '{part}'")))?;
+    }
+    Err(Error::Config(format!("--set '{item}': empty key")))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_parse_and_validate() {
+        let c = Config::defaults().unwrap();
+        assert_eq!(c.tiling.tile_size_m, 50.0);
+        assert_eq!(c.pipeline.memory_budget_mb, 1024);
+        assert_eq!(c.output_point_format().unwrap(), None);
+    }
+
+    #[test]
+    fn overrides_apply_and_unknown_keys_fail() {
+        let c = Config::load(
+            None,
+            &["tiling.tile_size_m=25".into(), "output.format=las".into()],
+        )
+        .unwrap();
+        assert_eq!(c.tiling.tile_size_m, 25.0);
+        assert_eq!(c.output.format, "las");
+        assert!(Config::load(None, &["tiling.nope=1".into()]).is_err());
+        assert!(Config::load(None, &["tiling.buffer_m=100".into()]).is_err());
+        assert!(Config::load(None, &["output.point_format=12".into()]).is_err());
+    }
+}

@@ -1,0 +1,85 @@
+//! Library error type: every variant names the file, tile or setting involved and says what
+//! was expected, so a nightly run's log is enough to act on a failure.
+
+use std::path::PathBuf;
+
+/// Result alias used throughout the library.
+pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+/// Everything that can go wrong in tessera's library code.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// An input file could not be used; `reason` says what was wrong.
+    #[error("input {path}: {reason}")]
+    BadInput {
+        /// The offending file.
+        path: PathBuf,
+        /// What was wrong with it.
+        reason: String,
+    },
+    /// A LAS/LAZ library error while reading or writing a file.
+    #[error("{path}: {source}")]
+    Las {
+        /// The file being read or written.
+        path: PathBuf,
+        /// The underlying error.
+        #[source]
+        source: las::Error,
+    },
+    /// An operating-system I/O error on a file or directory.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file or directory involved.
+        path: PathBuf,
+        /// The underlying error.
+        #[source]
+        source: std::io::Error,
+    },
+    /// The configuration is invalid.
+    #[error("configuration: {0}")]
+    Config(String),
+    /// The memory budget cannot be met for this input and these settings.
+    #[error("memory budget infeasible: {0}")]
+    Budget(String),
+    /// A processing stage failed on a tile.
+    #[error("tile {tile}: stage {stage}: {reason}")]
+    Stage {
+        /// Tile name.
+        tile: String,
+        /// Stage name.
+        stage: &'static str,
+        /// What went wrong.
+        reason: String,
+    },
+    /// An internal invariant was violated (a bug): the run stops rather than lose data.
+    #[error("internal error: {0}")]
+    Internal(String),
+}
+
+impl Error {
+    /// Shorthand for [`Error::Io`].
+    pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
+        Error::Io {
+            path: path.into(),
+            source,
+        }
+    }
+    /// Shorthand for [`Error::Las`].
+    pub fn las(path: impl Into<PathBuf>, source: las::Error) -> Self {
+        Error::Las {
+            path: path.into(),
+            source,
+        }
+    }
+    /// Shorthand for [`Error::BadInput`].
+    pub fn bad_input(path: impl Into<PathBuf>, reason: impl Into<String>) -> Self {
+        Error::BadInput {
+            path: path.into(),
+            reason: reason.into(),
+        }
+    }
+    /// True for errors caused by the user's input or settings rather than by processing.
+    pub fn is_usage(&self) -> bool {
+        matches!(self, Error::Config(_))
+    }
+}

@@ -1,0 +1,434 @@
+//! LAS/LAZ input: expand paths, read and validate every header up front (so a nightly run fails
+//! in seconds on a bad file instead of hours in), choose the run's record layout, and stream
+//! points in fixed-size chunks into reused buffers.
+
+use crate::error::{Error, Result};
+use crate::model::{point_id, RecordLayout, Rect};
+use las::point::Format;
+use las::{PointData, PointDataBuilder, Reader, Vector};
+use std::fs::File;
+use std::io::{BufReader, Read, Seek, SeekFrom};
+use std::path::{Path, PathBuf};
+
+/// One validated input file.
+#[derive(Debug, Clone)]
+pub struct InputFile {
+    /// Path as given (or found in a directory).
+    pub path: PathBuf,
+    /// Index in the run's sorted input list (the high bits of global point ids).
+    pub index: usize,
+    /// Header of the file.
+    pub header: las::Header,
+    /// Points announced by the header.
+    pub points: u64,
+    /// Header xy bounds (closed).
+    pub bounds: Rect,
+}
+
+/// All inputs of a run plus the record layout their points are carried in.
+#[derive(Debug, Clone)]
+pub struct InputSet {
+    /// Inputs, sorted by path.
+    pub files: Vec<InputFile>,
+    /// The run's record layout (output point format and transforms).
+    pub layout: RecordLayout,
+    /// Header used as the template for output tiles (VLRs, CRS, GPS time type).
+    pub template: las::Header,
+    /// Sum of the header point counts.
+    pub total_points: u64,
+}
+
+fn is_point_file(p: &Path) -> bool {
+    matches!(
+        p.extension()
+            .and_then(|e| e.to_str())
+            .map(|e| e.to_ascii_lowercase())
+            .as_deref(),
+        Some("las") | Some("laz")
+    )
+}
+
+/// Expands directories (recursively, `*.las`/`*.laz`) and sorts the list.
+pub fn expand_paths(inputs: &[PathBuf]) -> Result<Vec<PathBuf>> {
+    let mut out = Vec::new();
+    for p in inputs {
+        if p.is_dir() {
+            let mut stack = vec![p.clone()];
+            while let Some(dir) = stack.pop() {
+                let rd = std::fs::read_dir(&dir).map_err(|e| Error::io(&dir, e))?;
+                for entry in rd {
+                    let entry = entry.map_err(|e| Error::io(&dir, e))?;
+                    let path = entry.path();
+                    if path.is_dir() {
+                        stack.push(path);
+                    } else if is_point_file(&path) {
+                        out.push(path);
+                    }
+                }
+            }
+        } else {
+            out.push(p.clone());
+        }
+    }
+    out.sort();
+    out.dedup();
+    if out.is_empty() {
+        return Err(Error::Config("no LAS/LAZ input files given".into()));
+    }
+    Ok(out)
+}
+
+/// Checks the bytes of a file before handing it to the LAS parser, so the common ways a file
+/// is not point data get a precise message.
+fn sniff(path: &Path) -> Result<u64> {
+    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
+    if meta.len() == 0 {
+        return Err(Error::bad_input(path, "empty file (0 bytes)"));
+    }
+    let mut head = [0u8; 64];
+    let mut f = File::open(path).map_err(|e| Error::io(path, e))?;
+    let n = f.read(&mut head).map_err(|e| Error::io(path, e))?;
+    if head[..n].starts_with(b"version https://git-lfs") {
+        return Err(Error::bad_input(
+            path,
+            "this is a Git LFS pointer file, not point data (fetch the real file with `git lfs pull`)",
+        ));
+    }
+    if n < 4 || &head[..4] != b"LASF" {
+        let shown: String = head[..n.min(4)]
+            .iter()
+            .map(|b| {
+                if b.is_ascii_graphic() {
+                    *b as char
+                } else {
+                    '.'
+                }
+            })
+            .collect();
+        return Err(Error::bad_input(
+            path,
+            format!("not a LAS/LAZ file: signature is \"{shown}\", expected \"LASF\""),
+        ));
+    }
+    if n < 64 {
+        return Err(Error::bad_input(
+            path,
+            format!("truncated header: file is only {n} bytes"),
+        ));
+    }
+    Ok(meta.len())
+}
+
+/// Checks that the point data the header announces is physically present.
+fn check_point_data(path: &Path, header: &las::Header, file_len: u64) -> Result<()> {
+    let mut f = BufReader::new(File::open(path).map_err(|e| Error::io(path, e))?);
+    let raw = las::raw::Header::read_from(&mut f).map_err(|e| Error::las(path, e))?;
+    let start = raw.offset_to_point_data as u64;
+    let count = header.number_of_points();
+    if start > file_len {
+        return Err(Error::bad_input(
+            path,
+            format!("truncated: point data should start at byte {start} but the file is {file_len} bytes"),
+        ));
+    }
+    if !header.point_format().is_compressed {
+        let need = start + count * raw.point_data_record_length as u64;
+        if need > file_len {
+            let have = (file_len - start) / raw.point_data_record_length.max(1) as u64;
+            return Err(Error::bad_input(
+                path,
+                format!("header announces {count} points but the file holds only {have} complete records (truncated or wrong point count)"),
+            ));
+        }
+        return Ok(());
+    }
+    // LAZ: the chunk table at the end tells how many points and bytes really exist.
+    let vlr = header.laz_vlr().map_err(|e| Error::las(path, e))?;
+    f.seek(SeekFrom::Start(start))
+        .map_err(|e| Error::io(path, e))?;
+    let table = laz::laszip::ChunkTable::read_from(&mut f, &vlr).map_err(|e| {
+        Error::bad_input(
+            path,
+            format!("truncated or corrupt LAZ: cannot read the chunk table ({e})"),
+        )
+    })?;
+    let bytes: u64 = table.as_ref().iter().map(|c| c.byte_count).sum();
+    if start + 8 + bytes > file_len {
+        return Err(Error::bad_input(
+            path,
+            format!(
+                "truncated LAZ: chunks need {} bytes but the file is {file_len}",
+                start + 8 + bytes
+            ),
+        ));
+    }
+    let n_chunks = table.len() as u64;
+    let (lo, hi) = if vlr.uses_variable_size_chunks() {
+        let s: u64 = table.as_ref().iter().map(|c| c.point_count).sum();
+        (s, s)
+    } else {
+        let cs = vlr.chunk_size() as u64;
+        (n_chunks.saturating_sub(1) * cs + 1, n_chunks * cs)
+    };
+    if count > hi || (count > 0 && count < lo) {
+        return Err(Error::bad_input(
+            path,
+            format!("header announces {count} points but the LAZ chunk table holds {lo}..={hi}"),
+        ));
+    }
+    Ok(())
+}
+
+/// Opens and validates one input.
+pub fn scan_file(path: &Path, index: usize) -> Result<InputFile> {
+    let file_len = sniff(path)?;
+    let reader = Reader::from_path(path).map_err(|e| Error::las(path, e))?;
+    let header = reader.header().clone();
+    let t = header.transforms();
+    for (axis, tr) in [("x", t.x), ("y", t.y), ("z", t.z)] {
+        if !(tr.scale.is_finite() && tr.scale != 0.0 && tr.offset.is_finite()) {
+            return Err(Error::bad_input(
+                path,
+                format!(
+                    "invalid {axis} scale/offset in header ({} / {})",
+                    tr.scale, tr.offset
+                ),
+            ));
+        }
+    }
+    let b = header.bounds();
+    let vals = [b.min.x, b.min.y, b.min.z, b.max.x, b.max.y, b.max.z];
+    if header.number_of_points() > 0
+        && (vals.iter().any(|v| !v.is_finite()) || b.min.x > b.max.x || b.min.y > b.max.y)
+    {
+        return Err(Error::bad_input(
+            path,
+            format!("invalid bounds in header: {vals:?}"),
+        ));
+    }
+    check_point_data(path, &header, file_len)?;
+    Ok(InputFile {
+        path: path.to_path_buf(),
+        index,
+        points: header.number_of_points(),
+        bounds: Rect {
+            x0: b.min.x,
+            y0: b.min.y,
+            x1: b.max.x,
+            y1: b.max.y,
+        },
+        header,
+    })
+}
+
+fn base_format(mut f: Format) -> Format {
+    f.is_compressed = false;
+    f
+}
+
+/// Reads every header, validates, and plans the run's record layout.
+pub fn scan_inputs(inputs: &[PathBuf], point_format: Option<u8>) -> Result<InputSet> {
+    let paths = expand_paths(inputs)?;
+    let files: Vec<InputFile> = paths
+        .iter()
+        .enumerate()
+        .map(|(i, p)| scan_file(p, i))
+        .collect::<Result<_>>()?;
+    if files.len() as u64 >= (1 << 23) {
+        return Err(Error::Config(
+            "more than 8 million input files in one run".into(),
+        ));
+    }
+    if let Some(f) = files.iter().find(|f| f.points >= (1 << 40)) {
+        return Err(Error::bad_input(
+            &f.path,
+            "more than 2^40 points in one file",
+        ));
+    }
+    let first = &files[0];
+    // Extra bytes must describe the same attributes in every input: they are carried as
+    // opaque bytes, so mixing layouts would silently garble them.
+    let eb = |f: &InputFile| {
+        f.header
+            .vlrs()
+            .iter()
+            .find(|v| v.user_id == "LASF_Spec" && v.record_id == 4)
+            .map(|v| v.data.clone())
+    };
+    for f in &files[1..] {
+        if f.header.point_format().extra_bytes != first.header.point_format().extra_bytes
+            || eb(f) != eb(first)
+        {
+            return Err(Error::Config(format!(
+                "inputs {} and {} describe different extra-bytes attributes; process them in separate runs",
+                first.path.display(),
+                f.path.display()
+            )));
+        }
+    }
+    let mut union = base_format(*first.header.point_format());
+    let all_same = files
+        .iter()
+        .all(|f| base_format(*f.header.point_format()) == union);
+    for f in &files {
+        let g = f.header.point_format();
+        union.has_gps_time |= g.has_gps_time;
+        union.has_color |= g.has_color;
+        union.has_nir |= g.has_nir;
+        union.has_waveform |= g.has_waveform;
+        union.is_extended |= g.is_extended;
+    }
+    if union.has_nir {
+        union.is_extended = true;
+    }
+    if union.is_extended {
+        union.has_gps_time = true;
+    }
+    let format = match point_format {
+        None if all_same => union,
+        None => {
+            let mut f = union;
+            if f.to_u8().is_err() {
+                f.is_extended = true;
+                f.has_gps_time = true;
+            }
+            f
+        }
+        Some(n) => {
+            let mut f = Format::new(n)
+                .map_err(|e| Error::Config(format!("output.point_format {n}: {e}")))?;
+            f.extra_bytes = union.extra_bytes;
+            let holds = (!union.has_gps_time || f.has_gps_time)
+                && (!union.has_color || f.has_color)
+                && (!union.has_nir || f.has_nir)
+                && (!union.has_waveform || f.has_waveform)
+                && (!union.is_extended || f.is_extended);
+            if !holds {
+                return Err(Error::Config(format!(
+                    "output.point_format {n} cannot hold every attribute of the inputs (they need format {}); refusing to drop data",
+                    union.to_u8().unwrap_or(255)
+                )));
+            }
+            f
+        }
+    };
+    format.to_u8().map_err(|e| {
+        Error::Config(format!(
+            "no LAS point format holds the inputs' attributes: {e}"
+        ))
+    })?;
+    // Transforms: the first input's offsets with the finest scale of all inputs, so every
+    // input coordinate stays representable at its own precision.
+    let mut transforms: Vector<las::Transform> = *first.header.transforms();
+    for f in &files[1..] {
+        let t = f.header.transforms();
+        transforms.x.scale = transforms.x.scale.min(t.x.scale);
+        transforms.y.scale = transforms.y.scale.min(t.y.scale);
+        transforms.z.scale = transforms.z.scale.min(t.z.scale);
+    }
+    let layout = RecordLayout::new(format, transforms);
+    let total_points = files.iter().map(|f| f.points).sum();
+    Ok(InputSet {
+        template: first.header.clone(),
+        files,
+        layout,
+        total_points,
+    })
+}
+
+/// Streams one file's points in chunks of `chunk_points`, converted to `layout`, into `emit`
+/// (`emit(first_point_index, records)`). The chunk buffers are reused between calls.
+///
+/// Every point is checked: coordinates finite and inside the header's bounds (the tiler
+/// relies on them to know when a tile is complete).
+pub fn read_file_chunks(
+    file: &InputFile,
+    layout: &RecordLayout,
+    chunk_points: usize,
+    mut emit: impl FnMut(u64, &[u8]) -> Result<()>,
+) -> Result<u64> {
+    let path = &file.path;
+    let mut reader = Reader::from_path(path).map_err(|e| Error::las(path, e))?;
+    let mut data: PointData = PointDataBuilder::new().for_header(reader.header()).build();
+    let same = base_format(*reader.header().point_format()) == layout.format
+        && reader.header().transforms() == &layout.transforms;
+    let mut converted: Vec<u8> = Vec::new();
+    let mut done: u64 = 0;
+    let total = file.points;
+    let tol = |s: f64| 1.5 * s.abs() + 1e-9;
+    let t = reader.header().transforms();
+    let (tx, ty) = (tol(t.x.scale), tol(t.y.scale));
+    let b = file.bounds;
+    while done < total {
+        let want = (total - done).min(chunk_points as u64);
+        let got = reader
+            .fill_points(want, &mut data)
+            .map_err(|e| {
+                Error::bad_input(
+                    path,
+                    format!(
+                        "header announces {total} points, but reading points {done}..{} failed (truncated or corrupt data?): {e}",
+                        done + want
+                    ),
+                )
+            })?;
+        if got == 0 {
+            return Err(Error::bad_input(
+                path,
+                format!("header announces {total} points but the data ends after {done}"),
+            ));
+        }
+        let records: &[u8] = if same {
+            data.raw_bytes()
+        } else {
+            converted.clear();
+            convert_chunk(&data, layout, &mut converted)
+                .map_err(|e| Error::bad_input(path, format!("point {done}+: {e}")))?;
+            &converted
+        };
+        for (i, rec) in records.chunks_exact(layout.record_len).enumerate() {
+            let [x, y, z] = layout.xyz(rec);
+            if !(x.is_finite() && y.is_finite() && z.is_finite())
+                || x < b.x0 - tx
+                || x > b.x1 + tx
+                || y < b.y0 - ty
+                || y > b.y1 + ty
+            {
+                return Err(Error::bad_input(
+                    path,
+                    format!(
+                        "point {} at ({x}, {y}, {z}) lies outside the header bounds [{}, {}] × [{}, {}] or is not finite",
+                        done + i as u64, b.x0, b.x1, b.y0, b.y1
+                    ),
+                ));
+            }
+        }
+        emit(done, records)?;
+        done += got;
+    }
+    debug_assert!(point_id(file.index, done.saturating_sub(1)) >> 40 == file.index as u64);
+    Ok(done)
+}
+
+/// Re-encodes records of another format/transform into `layout`, filling attributes the
+/// input lacks with zeros.
+fn convert_chunk(data: &PointData, layout: &RecordLayout, out: &mut Vec<u8>) -> las::Result<()> {
+    let f = &layout.format;
+    for p in data.points() {
+        let mut p = p?;
+        if f.has_gps_time && p.gps_time.is_none() {
+            p.gps_time = Some(0.0);
+        }
+        if f.has_color && p.color.is_none() {
+            p.color = Some(las::Color::default());
+        }
+        if f.has_nir && p.nir.is_none() {
+            p.nir = Some(0);
+        }
+        if f.has_waveform && p.waveform.is_none() {
+            p.waveform = Some(Default::default());
+        }
+        p.into_raw(&layout.transforms)?.write_to(&mut *out, f)?;
+    }
+    Ok(())
+}

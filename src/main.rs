@@ -1,0 +1,205 @@
+//! Thin binary: parse → configure → run → exit code (0 ok, 1 processing error, 2 usage or
+//! configuration error).
+
+use anyhow::Context;
+use clap::Parser;
+use std::io::IsTerminal;
+use std::process::ExitCode;
+use tessera::cli::{Cli, Command};
+use tessera::{Config, Error};
+
+fn main() -> ExitCode {
+    let cli = match Cli::try_parse() {
+        Ok(c) => c,
+        Err(e) => {
+            let _ = e.print();
+            return if e.use_stderr() {
+                ExitCode::from(2)
+            } else {
+                ExitCode::SUCCESS
+            };
+        }
+    };
+    let level = match (cli.quiet, cli.verbose) {
+        (true, _) => "error",
+        (false, 0) => "info",
+        (false, 1) => "debug",
+        _ => "trace",
+    };
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(level)),
+        )
+        .with_writer(std::io::stderr)
+        .with_target(false)
+        .init();
+    tessera::sys::tame_allocator();
+    match run(cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            let usage = e
+                .downcast_ref::<Error>()
+                .map(|e| e.is_usage())
+                .unwrap_or(false);
+            ExitCode::from(if usage { 2 } else { 1 })
+        }
+    }
+}
+
+/// Progress reporting: a bar on a terminal, a log line every few seconds otherwise.
+struct Progress {
+    bar: Option<indicatif::ProgressBar>,
+    last: std::sync::Mutex<std::time::Instant>,
+    quiet: bool,
+}
+
+impl Progress {
+    fn new(quiet: bool) -> Self {
+        let bar = (!quiet && std::io::stderr().is_terminal()).then(|| {
+            let b = indicatif::ProgressBar::new(0);
+            b.set_style(
+                indicatif::ProgressStyle::with_template(
+                    "{elapsed_precise} [{bar:40}] {human_pos}/{human_len} points ({per_sec}, eta {eta})",
+                )
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+            );
+            b
+        });
+        Progress {
+            bar,
+            last: std::sync::Mutex::new(std::time::Instant::now()),
+            quiet,
+        }
+    }
+    fn update(&self, done: u64, total: u64) {
+        if let Some(b) = &self.bar {
+            b.set_length(total);
+            b.set_position(done);
+        } else if !self.quiet {
+            let mut last = self.last.lock().unwrap_or_else(|p| p.into_inner());
+            if last.elapsed().as_secs_f64() >= 5.0 || done == total {
+                *last = std::time::Instant::now();
+                tracing::info!(
+                    "read {done}/{total} points ({:.1} %)",
+                    100.0 * done as f64 / total.max(1) as f64
+                );
+            }
+        }
+    }
+    fn finish(&self) {
+        if let Some(b) = &self.bar {
+            b.finish_and_clear();
+        }
+    }
+}
+
+fn process(
+    inputs: &[std::path::PathBuf],
+    out: &std::path::Path,
+    cfg: &Config,
+    quiet: bool,
+) -> anyhow::Result<()> {
+    let progress = Progress::new(quiet);
+    let res = tessera::pipeline::run(inputs, out, cfg, &|d, t| progress.update(d, t));
+    progress.finish();
+    let s = res?;
+    tracing::info!(
+        "{} points in, {} out, {} tiles ({} grid tiles split), {:.2} s, peak RSS {:.0} MiB (budget {} MiB); summary: {}",
+        s.points_in,
+        s.points_out,
+        s.tiles,
+        s.tiles_split,
+        s.seconds.get("total").copied().unwrap_or(0.0),
+        s.peak_rss_mb,
+        s.memory_budget_mb,
+        out.join("summary.json").display()
+    );
+    Ok(())
+}
+
+fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
+        Command::Run { inputs, out, opts } => {
+            let cfg = Config::load(opts.config.as_deref(), &opts.overrides())?;
+            process(&inputs, &out, &cfg, cli.quiet)
+        }
+        Command::Synth {
+            out,
+            seed,
+            length_m,
+            points_per_m2,
+            file_length_m,
+        } => {
+            let mut p = tessera::synth::SceneParams {
+                seed,
+                length_m,
+                ..Default::default()
+            };
+            if let Some(d) = points_per_m2 {
+                p.points_per_m2 = d;
+            }
+            let s = tessera::synth::write_scene(&p, &out, file_length_m)?;
+            tracing::info!(
+                "wrote {} points in {} files to {}",
+                s.points,
+                s.files,
+                out.display()
+            );
+            Ok(())
+        }
+        Command::Demo {
+            out,
+            length_m,
+            opts,
+        } => {
+            let cfg = Config::load(opts.config.as_deref(), &opts.overrides())?;
+            let scene_dir = out.join("scene");
+            let p = tessera::synth::SceneParams {
+                seed: 1,
+                length_m,
+                ..Default::default()
+            };
+            let s = tessera::synth::write_scene(&p, &scene_dir, 50.0).with_context(|| {
+                format!("synthesising the demo scene into {}", scene_dir.display())
+            })?;
+            tracing::info!("demo scene: {} points in {} files", s.points, s.files);
+            process(&[scene_dir], &out.join("tiles"), &cfg, cli.quiet)
+        }
+        Command::Info { file } => {
+            let f = tessera::io::input::scan_file(&file, 0)?;
+            let h = &f.header;
+            let b = h.bounds();
+            println!("file: {}", file.display());
+            println!("version: {}", h.version());
+            println!(
+                "point format: {} (record {} bytes, extra bytes {})",
+                h.point_format().to_u8().unwrap_or(255),
+                h.point_format().len(),
+                h.point_format().extra_bytes
+            );
+            println!("compressed: {}", h.point_format().is_compressed);
+            println!("points: {}", h.number_of_points());
+            println!(
+                "bounds: x {} .. {}, y {} .. {}, z {} .. {}",
+                b.min.x, b.max.x, b.min.y, b.max.y, b.min.z, b.max.z
+            );
+            let t = h.transforms();
+            println!(
+                "scale: {} {} {}; offset: {} {} {}",
+                t.x.scale, t.y.scale, t.z.scale, t.x.offset, t.y.offset, t.z.offset
+            );
+            for v in h.all_vlrs() {
+                println!(
+                    "vlr: {} {} \"{}\" ({} bytes)",
+                    v.user_id,
+                    v.record_id,
+                    v.description,
+                    v.data.len()
+                );
+            }
+            Ok(())
+        }
+    }
+}

@@ -1,0 +1,95 @@
+//! The memory budget: one knob (`memory_budget_mb`) turned into chunk sizes, spill buffer
+//! bounds, channel depths and the largest tile a worker may load.
+//!
+//! Model (bytes): peak ≈ fixed + reader + spill + tiles_in_flight × max_tile_points ×
+//! bytes_per_tile_point. `fixed` covers the binary, thread stacks, allocator slack and the
+//! LAZ codecs' own buffers; it was measured, not guessed (see README, memory figures).
+
+use crate::error::{Error, Result};
+use serde::Serialize;
+
+/// Bytes the process needs before any point is held (binary, runtime, codecs), measured on
+/// the pass-through pipeline with tiny inputs, rounded up.
+pub const FIXED_BYTES: u64 = 40 << 20;
+
+/// The resolved plan.
+#[derive(Debug, Clone, Serialize)]
+pub struct BudgetPlan {
+    /// The budget, bytes.
+    pub budget_bytes: u64,
+    /// Points per reader chunk.
+    pub chunk_points: usize,
+    /// Chunks queued between reader and tiler.
+    pub chunk_depth: usize,
+    /// Bound on spill write buffers, bytes.
+    pub spill_bytes: usize,
+    /// Worker threads.
+    pub workers: usize,
+    /// Tiles that may be in memory at once (workers + queued results + writer).
+    pub tiles_in_flight: usize,
+    /// Bytes one tile point costs while processed.
+    pub bytes_per_tile_point: usize,
+    /// Largest tile (core + buffer points) a worker loads; larger ones are split.
+    pub max_tile_points: u64,
+}
+
+impl BudgetPlan {
+    /// Plans for `budget_mb`, records of `record_len` bytes, stages needing
+    /// `stage_bytes_per_point`, and `workers` threads.
+    pub fn new(
+        budget_mb: u64,
+        record_len: usize,
+        stage_bytes_per_point: usize,
+        workers: usize,
+    ) -> Result<Self> {
+        let budget = budget_mb << 20;
+        let workers = workers.max(1);
+        let usable = budget.saturating_sub(FIXED_BYTES);
+        // Reader: ~4 chunks alive (being decoded, queued ×2, being binned).
+        let chunk_depth = 2;
+        let reader_bytes = usable / 25;
+        let chunk_points =
+            ((reader_bytes / 4) / (record_len as u64 * 2)).clamp(4096, 1 << 20) as usize;
+        let spill_bytes = (usable / 10) as usize;
+        // In memory at once: one tile per worker, one queued for the writer, one being
+        // written (its records only, but count it whole).
+        let tiles_in_flight = workers + 2;
+        // Per point: raw record + id + xyz + the stages' working memory, with 25 % slack for
+        // allocator growth.
+        let bytes_per_tile_point = (record_len + 8 + 24 + stage_bytes_per_point) * 5 / 4;
+        let tile_bytes = usable
+            .saturating_sub(reader_bytes)
+            .saturating_sub(spill_bytes as u64);
+        let max_tile_points = tile_bytes / tiles_in_flight as u64 / bytes_per_tile_point as u64;
+        if max_tile_points < 20_000 {
+            return Err(Error::Budget(format!(
+                "memory budget {budget_mb} MiB leaves room for only {max_tile_points} points per tile with {workers} workers ({bytes_per_tile_point} bytes per point); use at least {} MiB or fewer threads",
+                (FIXED_BYTES + 20_000 * tiles_in_flight as u64 * bytes_per_tile_point as u64 * 100 / 85) >> 20
+            )));
+        }
+        Ok(BudgetPlan {
+            budget_bytes: budget,
+            chunk_points,
+            chunk_depth,
+            spill_bytes,
+            workers,
+            tiles_in_flight,
+            bytes_per_tile_point,
+            max_tile_points,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn plan_scales_with_budget_and_rejects_tiny() {
+        let a = BudgetPlan::new(256, 34, 0, 2).unwrap();
+        let b = BudgetPlan::new(1024, 34, 0, 2).unwrap();
+        assert!(b.max_tile_points > 3 * a.max_tile_points);
+        assert!(a.max_tile_points > 200_000, "{a:?}");
+        assert!(BudgetPlan::new(64, 34, 4000, 8).is_err());
+    }
+}

@@ -1,0 +1,387 @@
+//! The pipeline: reader → tiler → worker pool → writer, wired with bounded channels so a slow
+//! stage holds the others back instead of letting queues grow.
+//!
+//! ```text
+//! reader ──chunks(bounded)──▶ tiler ──jobs(bounded)──▶ workers ×N ──results(bounded)──▶ writer
+//!   (LAS/LAZ, fill_points)     (spill files)            (load/split, stages)             (LAZ, atomic)
+//! ```
+//! Jobs carry only spill-file paths; tiles are loaded by the worker that processes them, so
+//! the tiles in memory at once are bounded by the worker count plus the result channel depth.
+
+pub mod budget;
+pub mod stage;
+
+use crate::config::Config;
+use crate::error::{Error, Result};
+use crate::io::input::read_file_chunks;
+use crate::io::{scan_inputs, write_atomic, InputSet, TileWriter};
+use crate::model::Tile;
+use crate::report::{peak_rss_mb, Summary, TileSummary};
+use crate::tiling::{load_tile, schedule, split_job, Grid, TileJob, Tiler};
+use budget::BudgetPlan;
+use crossbeam_channel::{bounded, Receiver, Sender};
+pub use stage::{build_stages, Stage, StatsStage, TileReport};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Mutex;
+use std::time::Instant;
+
+/// Progress callback: called with (points read so far, total points).
+pub type ProgressFn<'a> = &'a (dyn Fn(u64, u64) + Sync);
+
+enum ReadMsg {
+    Chunk {
+        file: usize,
+        first: u64,
+        records: Vec<u8>,
+    },
+    FileDone(usize),
+}
+
+struct Processed {
+    tile: Tile,
+    report: TileReport,
+    split_root: Option<String>,
+}
+
+/// Shared failure state: the first error wins; everyone else stops quietly.
+struct Failure {
+    first: Mutex<Option<Error>>,
+    flag: AtomicBool,
+}
+
+impl Failure {
+    fn set(&self, e: Error) {
+        let mut g = self.first.lock().unwrap_or_else(|p| p.into_inner());
+        if g.is_none() {
+            *g = Some(e);
+        }
+        self.flag.store(true, Ordering::SeqCst);
+    }
+    fn failed(&self) -> bool {
+        self.flag.load(Ordering::SeqCst)
+    }
+}
+
+/// Runs the whole pipeline on `inputs`, writing tiles and `summary.json` into `out_dir`.
+pub fn run(
+    inputs: &[PathBuf],
+    out_dir: &Path,
+    cfg: &Config,
+    progress: ProgressFn,
+) -> Result<Summary> {
+    let stages = build_stages(&cfg.stages.run)?;
+    run_with_stages(inputs, out_dir, cfg, &stages, progress)
+}
+
+/// Like [`run`], with the stages given by the caller instead of `cfg.stages.run`.
+pub fn run_with_stages(
+    inputs: &[PathBuf],
+    out_dir: &Path,
+    cfg: &Config,
+    stages: &[Box<dyn Stage>],
+    progress: ProgressFn,
+) -> Result<Summary> {
+    let t0 = Instant::now();
+    let set = scan_inputs(inputs, cfg.output_point_format()?)?;
+    let scan_s = t0.elapsed().as_secs_f64();
+    let workers = if cfg.pipeline.threads == 0 {
+        std::thread::available_parallelism()
+            .map(|n| n.get())
+            .unwrap_or(1)
+    } else {
+        cfg.pipeline.threads
+    };
+    let stage_bpp: usize = stages.iter().map(|s| s.bytes_per_point()).sum();
+    let plan = BudgetPlan::new(
+        cfg.pipeline.memory_budget_mb,
+        set.layout.record_len,
+        stage_bpp,
+        workers,
+    )?;
+    std::fs::create_dir_all(out_dir).map_err(|e| Error::io(out_dir, e))?;
+    let spill_dir = if cfg.pipeline.spill_dir.is_empty() {
+        out_dir.join(".tessera-spill")
+    } else {
+        PathBuf::from(&cfg.pipeline.spill_dir)
+    };
+    // A previous crashed run may have left spill files; they are never valid for a new run.
+    let _ = std::fs::remove_dir_all(&spill_dir);
+    std::fs::create_dir_all(&spill_dir).map_err(|e| Error::io(&spill_dir, e))?;
+    let writer = TileWriter::new(&set.template, &set.layout, cfg.output.format == "laz")?;
+    let res = run_inner(
+        &set, out_dir, &spill_dir, cfg, &plan, stages, &writer, progress,
+    );
+    let _ = std::fs::remove_dir_all(&spill_dir);
+    let mut summary = res?;
+    summary.seconds.insert("scan".into(), scan_s);
+    summary
+        .seconds
+        .insert("total".into(), t0.elapsed().as_secs_f64());
+    summary.version = env!("CARGO_PKG_VERSION").into();
+    summary.inputs = set.files.len();
+    summary.points_in = set.total_points;
+    summary.memory_budget_mb = cfg.pipeline.memory_budget_mb;
+    summary.point_format = set.layout.format.to_u8().unwrap_or(255);
+    summary.budget = Some(plan);
+    summary.peak_rss_mb = peak_rss_mb().unwrap_or(0.0);
+    if summary.points_out != summary.points_in {
+        return Err(Error::Internal(format!(
+            "wrote {} points but the inputs hold {}",
+            summary.points_out, summary.points_in
+        )));
+    }
+    let json = serde_json::to_vec_pretty(&summary).map_err(|e| Error::Internal(e.to_string()))?;
+    write_atomic(&out_dir.join("summary.json"), &json)?;
+    Ok(summary)
+}
+
+#[allow(clippy::too_many_arguments)]
+fn run_inner(
+    set: &InputSet,
+    out_dir: &Path,
+    spill_dir: &Path,
+    cfg: &Config,
+    plan: &BudgetPlan,
+    stages: &[Box<dyn Stage>],
+    writer: &TileWriter,
+    progress: ProgressFn,
+) -> Result<Summary> {
+    let grid = Grid {
+        tile_size_m: cfg.tiling.tile_size_m,
+        buffer_m: cfg.tiling.buffer_m,
+    };
+    let order = schedule(&set.files, &grid);
+    let failure = Failure {
+        first: Mutex::new(None),
+        flag: AtomicBool::new(false),
+    };
+    let read_points = AtomicU64::new(0);
+    let max_open = AtomicU64::new(0);
+    let (chunk_tx, chunk_rx) = bounded::<ReadMsg>(plan.chunk_depth);
+    let (free_tx, free_rx) = bounded::<Vec<u8>>(plan.chunk_depth + 2);
+    let (job_tx, job_rx) = bounded::<TileJob>(plan.workers);
+    let (res_tx, res_rx) = bounded::<Processed>(1);
+    let layout = &set.layout;
+    let tread = Mutex::new(0.0f64);
+    let ttile = Mutex::new(0.0f64);
+
+    let mut summary = Summary::default();
+    let twrite = Instant::now();
+    let mut write_s = 0.0;
+    std::thread::scope(|s| {
+        // Reader.
+        s.spawn(|| {
+            let t = Instant::now();
+            let r = (|| -> Result<()> {
+                for &fi in &order {
+                    let f = &set.files[fi];
+                    read_file_chunks(f, layout, plan.chunk_points, |first, recs| {
+                        if failure.failed() {
+                            return Err(Error::Internal("cancelled".into()));
+                        }
+                        let mut buf = free_rx.try_recv().unwrap_or_default();
+                        buf.clear();
+                        buf.extend_from_slice(recs);
+                        let n = (recs.len() / layout.record_len) as u64;
+                        chunk_tx
+                            .send(ReadMsg::Chunk {
+                                file: fi,
+                                first,
+                                records: buf,
+                            })
+                            .map_err(|_| Error::Internal("cancelled".into()))?;
+                        let done = read_points.fetch_add(n, Ordering::Relaxed) + n;
+                        progress(done, set.total_points);
+                        Ok(())
+                    })?;
+                    chunk_tx
+                        .send(ReadMsg::FileDone(fi))
+                        .map_err(|_| Error::Internal("cancelled".into()))?;
+                }
+                Ok(())
+            })();
+            if let Err(e) = r {
+                if !failure.failed() {
+                    failure.set(e);
+                }
+            }
+            drop(chunk_tx);
+            *tread.lock().unwrap_or_else(|p| p.into_inner()) = t.elapsed().as_secs_f64();
+        });
+        // Tiler.
+        s.spawn(|| {
+            let t = Instant::now();
+            let r = (|| -> Result<()> {
+                let mut tiler = Tiler::new(grid, layout, &set.files, spill_dir, plan.spill_bytes);
+                for msg in chunk_rx.iter() {
+                    match msg {
+                        ReadMsg::Chunk {
+                            file,
+                            first,
+                            records,
+                        } => {
+                            tiler.push_chunk(file, first, &records)?;
+                            let _ = free_tx.try_send(records);
+                            max_open.fetch_max(tiler.open_tiles() as u64, Ordering::Relaxed);
+                        }
+                        ReadMsg::FileDone(f) => {
+                            for job in tiler.file_done(f)? {
+                                if job_tx.send(job).is_err() {
+                                    return Ok(());
+                                }
+                            }
+                        }
+                    }
+                }
+                if failure.failed() {
+                    return Ok(());
+                }
+                for job in tiler.finish()? {
+                    if job_tx.send(job).is_err() {
+                        return Ok(());
+                    }
+                }
+                Ok(())
+            })();
+            if let Err(e) = r {
+                failure.set(e);
+            }
+            drop(job_tx);
+            *ttile.lock().unwrap_or_else(|p| p.into_inner()) = t.elapsed().as_secs_f64();
+        });
+        // Workers.
+        for _ in 0..plan.workers {
+            let job_rx: Receiver<TileJob> = job_rx.clone();
+            let res_tx: Sender<Processed> = res_tx.clone();
+            let failure = &failure;
+            s.spawn(move || {
+                for job in job_rx.iter() {
+                    if failure.failed() {
+                        break;
+                    }
+                    if let Err(e) = work(job, set, spill_dir, cfg, plan, stages, &res_tx) {
+                        failure.set(e);
+                        break;
+                    }
+                }
+            });
+        }
+        drop(res_tx);
+        drop(job_rx);
+        // Writer (this thread).
+        for p in res_rx.iter() {
+            if failure.failed() {
+                continue;
+            }
+            let t = Instant::now();
+            let Processed {
+                mut tile,
+                report,
+                split_root,
+            } = p;
+            let name = tile.name.to_string();
+            let n_core = tile.n_core;
+            let buffer_points = (tile.len() - n_core) as u64;
+            tile.records.truncate(n_core * layout.record_len);
+            match writer.write(out_dir, &name, std::mem::take(&mut tile.records)) {
+                Ok(path) => {
+                    summary.points_out += n_core as u64;
+                    if let Some(root) = split_root {
+                        if !summary.split_tiles.contains(&root) {
+                            summary.split_tiles.push(root);
+                        }
+                    }
+                    for (k, v) in &report.seconds {
+                        *summary.seconds.entry(format!("stage_{k}")).or_default() += v;
+                    }
+                    summary.tile_list.push(TileSummary {
+                        name,
+                        file: path
+                            .file_name()
+                            .map(|f| f.to_string_lossy().into_owned())
+                            .unwrap_or_default(),
+                        points: n_core as u64,
+                        buffer_points,
+                        stats: report.stats,
+                    });
+                }
+                Err(e) => failure.set(e),
+            }
+            write_s += t.elapsed().as_secs_f64();
+        }
+    });
+    if let Some(e) = failure
+        .first
+        .into_inner()
+        .unwrap_or_else(|p| p.into_inner())
+    {
+        return Err(e);
+    }
+    summary.tiles = summary.tile_list.len();
+    summary.tiles_split = summary.split_tiles.len();
+    summary.max_open_tiles = max_open.load(Ordering::Relaxed) as usize;
+    summary.seconds.insert(
+        "read".into(),
+        *tread.lock().unwrap_or_else(|p| p.into_inner()),
+    );
+    summary.seconds.insert(
+        "tile".into(),
+        *ttile.lock().unwrap_or_else(|p| p.into_inner()),
+    );
+    summary.seconds.insert("write".into(), write_s);
+    summary
+        .seconds
+        .insert("pipeline".into(), twrite.elapsed().as_secs_f64());
+    Ok(summary)
+}
+
+/// Processes one job: splits it while it is too big for the budget, then loads and runs the
+/// stages on each resulting tile.
+fn work(
+    job: TileJob,
+    set: &InputSet,
+    spill_dir: &Path,
+    cfg: &Config,
+    plan: &BudgetPlan,
+    stages: &[Box<dyn Stage>],
+    res_tx: &Sender<Processed>,
+) -> Result<()> {
+    let root = job.name.to_string();
+    let mut todo = vec![job];
+    let mut was_split = false;
+    while let Some(job) = todo.pop() {
+        if job.n_core + job.n_buf > plan.max_tile_points {
+            was_split = true;
+            let children = split_job(
+                &job,
+                &set.layout,
+                spill_dir,
+                cfg.tiling.min_tile_size_m,
+                plan.spill_bytes / plan.workers.max(1),
+                plan.max_tile_points,
+            )?;
+            // Reverse so children are processed in quadrant order.
+            todo.extend(children.into_iter().rev());
+            continue;
+        }
+        let mut tile = load_tile(&job, &set.layout)?;
+        let mut report = TileReport::default();
+        for st in stages {
+            let t = Instant::now();
+            st.process(&mut tile, &set.layout, &mut report)?;
+            report
+                .seconds
+                .insert(st.name().to_string(), t.elapsed().as_secs_f64());
+        }
+        let p = Processed {
+            tile,
+            report,
+            split_root: was_split.then(|| root.clone()),
+        };
+        if res_tx.send(p).is_err() {
+            return Ok(());
+        }
+    }
+    Ok(())
+}

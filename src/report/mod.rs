@@ -1,0 +1,61 @@
+//! Run summary (`summary.json`) and process memory figures.
+
+use crate::pipeline::budget::BudgetPlan;
+use serde::Serialize;
+use std::collections::BTreeMap;
+
+/// Peak resident set size of this process so far (VmHWM), MiB; `None` where /proc is absent.
+pub fn peak_rss_mb() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb / 1024.0)
+}
+
+/// One written tile.
+#[derive(Debug, Clone, Serialize)]
+pub struct TileSummary {
+    /// Tile name.
+    pub name: String,
+    /// Output file name.
+    pub file: String,
+    /// Core points written.
+    pub points: u64,
+    /// Buffer points seen as context.
+    pub buffer_points: u64,
+    /// Per-stage statistics.
+    pub stats: BTreeMap<String, serde_json::Value>,
+}
+
+/// The run summary written to `summary.json`.
+#[derive(Debug, Clone, Serialize, Default)]
+pub struct Summary {
+    /// tessera version.
+    pub version: String,
+    /// Input files.
+    pub inputs: usize,
+    /// Points announced by the input headers (all read).
+    pub points_in: u64,
+    /// Core points written (must equal `points_in`).
+    pub points_out: u64,
+    /// Output tiles written.
+    pub tiles: usize,
+    /// Grid tiles that were split by the quadtree to fit the budget.
+    pub tiles_split: usize,
+    /// Names of the split grid tiles.
+    pub split_tiles: Vec<String>,
+    /// Wall seconds per phase and summed worker seconds per stage.
+    pub seconds: BTreeMap<String, f64>,
+    /// Peak resident set size (VmHWM), MiB.
+    pub peak_rss_mb: f64,
+    /// Configured memory budget, MiB.
+    pub memory_budget_mb: u64,
+    /// Most tiles open in the tiler at once.
+    pub max_open_tiles: usize,
+    /// The resolved budget plan.
+    pub budget: Option<BudgetPlan>,
+    /// Output point format and record length.
+    pub point_format: u8,
+    /// Written tiles, in write order.
+    pub tile_list: Vec<TileSummary>,
+}

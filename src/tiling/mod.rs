@@ -1,0 +1,241 @@
+//! Tiling: bins streamed points into core tiles plus overlap buffers, spills incomplete tiles
+//! to disk, and releases a tile as soon as every input that could touch it has been read.
+
+pub mod grid;
+pub mod load;
+pub mod spill;
+
+pub use grid::Grid;
+pub use load::{load_tile, split_job};
+pub use spill::{Part, SpillSet, TileMap};
+
+use crate::error::Result;
+use crate::io::InputFile;
+use crate::model::{point_id, RecordLayout, Rect, TileId, TileName};
+use std::path::{Path, PathBuf};
+
+/// A complete tile waiting on disk for a worker.
+#[derive(Debug, Clone)]
+pub struct TileJob {
+    /// Identity.
+    pub id: TileId,
+    /// Printable name.
+    pub name: TileName,
+    /// Core rectangle.
+    pub core: Rect,
+    /// Buffer width.
+    pub buffer_m: f64,
+    /// Spill file of core points.
+    pub core_path: PathBuf,
+    /// Spill file of buffer points.
+    pub buf_path: PathBuf,
+    /// Core points in the spill file.
+    pub n_core: u64,
+    /// Buffer points in the spill file.
+    pub n_buf: u64,
+}
+
+struct OpenTile {
+    /// Inputs not fully read yet whose bounds reach this tile's core+buffer region.
+    pending: u32,
+    /// Spill slot.
+    slot: usize,
+}
+
+/// The binning state machine run by the tiler thread.
+pub struct Tiler<'a> {
+    grid: Grid,
+    layout: &'a RecordLayout,
+    files: &'a [InputFile],
+    file_done: Vec<bool>,
+    spill: SpillSet,
+    spill_dir: PathBuf,
+    open: TileMap<OpenTile>,
+    /// The last core tile seen: consecutive points almost always share it.
+    last: Option<(i64, i64, usize)>,
+}
+
+fn reach(file: &InputFile, layout: &RecordLayout) -> Rect {
+    // Header bounds plus the tolerance the reader accepts for points outside them.
+    let t = &layout.transforms;
+    let tol = 1.5 * t.x.scale.abs().max(t.y.scale.abs()) + 1e-6;
+    file.bounds.expanded(tol)
+}
+
+impl<'a> Tiler<'a> {
+    /// Creates a tiler spilling into `spill_dir` with at most `spill_bytes` buffered.
+    pub fn new(
+        grid: Grid,
+        layout: &'a RecordLayout,
+        files: &'a [InputFile],
+        spill_dir: &Path,
+        spill_bytes: usize,
+    ) -> Self {
+        Tiler {
+            grid,
+            layout,
+            files,
+            file_done: vec![false; files.len()],
+            spill: SpillSet::new(spill_dir, spill_bytes),
+            spill_dir: spill_dir.to_path_buf(),
+            open: TileMap::default(),
+            last: None,
+        }
+    }
+
+    /// Number of tiles currently open (receiving points).
+    pub fn open_tiles(&self) -> usize {
+        self.open.len()
+    }
+
+    /// Bins one chunk of records read from input `file` starting at point `first`.
+    pub fn push_chunk(&mut self, file: usize, first: u64, records: &[u8]) -> Result<()> {
+        let rl = self.layout.record_len;
+        let grid = self.grid;
+        let b = grid.buffer_m;
+        for (i, rec) in records.chunks_exact(rl).enumerate() {
+            let [x, y, _] = self.layout.xyz(rec);
+            let pid = point_id(file, first + i as u64);
+            let (ix, iy) = grid.cell(x, y);
+            let slot = match self.last {
+                Some((lx, ly, s)) if lx == ix && ly == iy => s,
+                _ => {
+                    let s = self.open_slot(TileId::grid(ix, iy));
+                    self.last = Some((ix, iy, s));
+                    s
+                }
+            };
+            self.spill.push(slot, Part::Core, pid, rec)?;
+            if b > 0.0 {
+                let r = grid.cell_rect(ix, iy);
+                if x < r.x0 + b || x >= r.x1 - b || y < r.y0 + b || y >= r.y1 - b {
+                    let mut err = Ok(());
+                    grid.assign(x, y, |tile, is_core| {
+                        if !is_core && err.is_ok() {
+                            let s = self.open_slot(tile);
+                            err = self.spill.push(s, Part::Buffer, pid, rec);
+                        }
+                    });
+                    err?;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The spill slot of a tile, opening the tile (and counting the inputs that may still
+    /// reach it) on first use.
+    fn open_slot(&mut self, tile: TileId) -> usize {
+        if let Some(t) = self.open.get(&tile) {
+            return t.slot;
+        }
+        let region = self
+            .grid
+            .cell_rect(tile.ix, tile.iy)
+            .expanded(self.grid.buffer_m);
+        let pending = self
+            .files
+            .iter()
+            .enumerate()
+            .filter(|(k, f)| !self.file_done[*k] && reach(f, self.layout).intersects(&region))
+            .count() as u32;
+        let slot = self.spill.slot(tile);
+        self.open.insert(tile, OpenTile { pending, slot });
+        slot
+    }
+
+    /// Marks input `file` as fully read and returns the tiles that became complete, in a
+    /// deterministic order.
+    pub fn file_done(&mut self, file: usize) -> Result<Vec<TileJob>> {
+        self.file_done[file] = true;
+        let r = reach(&self.files[file], self.layout);
+        let grid = self.grid;
+        for (id, t) in self.open.iter_mut() {
+            let region = grid.cell_rect(id.ix, id.iy).expanded(grid.buffer_m);
+            if r.intersects(&region) {
+                t.pending = t.pending.saturating_sub(1);
+            }
+        }
+        let ready: Vec<TileId> = {
+            let mut v: Vec<TileId> = self
+                .open
+                .iter()
+                .filter(|(_, t)| t.pending == 0)
+                .map(|(k, _)| *k)
+                .collect();
+            v.sort();
+            v
+        };
+        self.release(ready)
+    }
+
+    /// Releases every open tile (all inputs read).
+    pub fn finish(&mut self) -> Result<Vec<TileJob>> {
+        let mut v: Vec<TileId> = self.open.keys().copied().collect();
+        v.sort();
+        self.release(v)
+    }
+
+    fn release(&mut self, ids: Vec<TileId>) -> Result<Vec<TileJob>> {
+        let mut jobs = Vec::new();
+        self.last = None;
+        for id in ids {
+            self.open.remove(&id);
+            let (n_core, n_buf) = self.spill.finish(id)?;
+            let core = self.grid.cell_rect(id.ix, id.iy);
+            let job = TileJob {
+                id,
+                name: TileName {
+                    id,
+                    origin: (core.x0, core.y0),
+                },
+                core,
+                buffer_m: self.grid.buffer_m,
+                core_path: spill::spill_path(&self.spill_dir, id, Part::Core),
+                buf_path: spill::spill_path(&self.spill_dir, id, Part::Buffer),
+                n_core,
+                n_buf,
+            };
+            if n_core == 0 {
+                // Only buffer points fell here: nothing to write, the points are written by
+                // their own core tiles.
+                let _ = std::fs::remove_file(&job.buf_path);
+                continue;
+            }
+            jobs.push(job);
+        }
+        Ok(jobs)
+    }
+}
+
+/// Orders input files so that spatial neighbours are read one after another (Morton order of
+/// their centres on the tile grid): tiles then complete early and few stay open.
+pub fn schedule(files: &[InputFile], grid: &Grid) -> Vec<usize> {
+    let mut keys: Vec<(u64, usize)> = files
+        .iter()
+        .map(|f| {
+            let cx = 0.5 * (f.bounds.x0 + f.bounds.x1);
+            let cy = 0.5 * (f.bounds.y0 + f.bounds.y1);
+            let (ix, iy) = grid.cell(cx, cy);
+            (morton(ix, iy), f.index)
+        })
+        .collect();
+    keys.sort();
+    keys.into_iter().map(|(_, i)| i).collect()
+}
+
+/// Morton code of a (biased) cell index pair.
+pub fn morton(ix: i64, iy: i64) -> u64 {
+    fn spread(v: u32) -> u64 {
+        let mut x = v as u64;
+        x = (x | (x << 16)) & 0x0000_FFFF_0000_FFFF;
+        x = (x | (x << 8)) & 0x00FF_00FF_00FF_00FF;
+        x = (x | (x << 4)) & 0x0F0F_0F0F_0F0F_0F0F;
+        x = (x | (x << 2)) & 0x3333_3333_3333_3333;
+        x = (x | (x << 1)) & 0x5555_5555_5555_5555;
+        x
+    }
+    let bx = (ix.wrapping_add(1 << 31)) as u32;
+    let by = (iy.wrapping_add(1 << 31)) as u32;
+    spread(bx) | (spread(by) << 1)
+}

@@ -1,0 +1,199 @@
+//! Bad input never crashes and never leaves partial output: a clear error naming the file and
+//! the problem, exit code 1, no tile (and no temporary file) in the output directory.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn tessera() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_tessera"))
+}
+
+/// A small valid LAS/LAZ written by the las crate.
+fn write_valid(path: &Path, n: usize) {
+    let mut b = las::Builder::from((1, 2));
+    b.point_format = las::point::Format::new(1).unwrap();
+    b.point_format.is_compressed = path.extension().is_some_and(|e| e == "laz");
+    let mut w = las::Writer::from_path(path, b.into_header().unwrap()).unwrap();
+    for i in 0..n {
+        let v = i as f64 * 0.37;
+        w.write_point(las::Point {
+            x: v % 97.0,
+            y: (v * 7.0) % 89.0,
+            z: v % 5.0,
+            gps_time: Some(v),
+            intensity: (i % 1000) as u16,
+            ..Default::default()
+        })
+        .unwrap();
+    }
+    w.close().unwrap();
+}
+
+/// Runs tessera on a good file plus `bad`; expects failure naming `bad` and `needle`.
+fn expect_failure(bad: &Path, needle: &str) {
+    let dir = bad.parent().unwrap();
+    let good = dir.join("good.las");
+    write_valid(&good, 5000);
+    let out = dir.join("out");
+    let o = tessera()
+        .args(["-q", "run"])
+        .arg(&good)
+        .arg(bad)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(
+        o.status.code(),
+        Some(1),
+        "exit code for {}: stderr {err}",
+        bad.display()
+    );
+    let name = bad.file_name().unwrap().to_string_lossy();
+    assert!(err.contains(name.as_ref()), "error must name {name}: {err}");
+    assert!(
+        err.to_lowercase().contains(needle),
+        "error must say '{needle}': {err}"
+    );
+    let left: Vec<PathBuf> = std::fs::read_dir(&out)
+        .map(|rd| rd.filter_map(|e| e.ok().map(|e| e.path())).collect())
+        .unwrap_or_default();
+    assert!(
+        left.iter()
+            .all(|p| p.is_dir() && !p.ends_with(".tessera-spill")),
+        "output left behind for {}: {left:?}",
+        bad.display()
+    );
+    assert!(
+        !out.join(".tessera-spill").exists(),
+        "spill directory left behind"
+    );
+}
+
+#[test]
+fn truncated_laz() {
+    let d = tempfile::tempdir().unwrap();
+    let full = d.path().join("full.laz");
+    write_valid(&full, 200_000);
+    let bytes = std::fs::read(&full).unwrap();
+    let bad = d.path().join("truncated.laz");
+    std::fs::write(&bad, &bytes[..bytes.len() / 2]).unwrap();
+    expect_failure(&bad, "truncated");
+}
+
+#[test]
+fn wrong_signature() {
+    let d = tempfile::tempdir().unwrap();
+    let bad = d.path().join("notlas.las");
+    std::fs::write(
+        &bad,
+        b"PK\x03\x04 this is a zip file, not a point cloud, padded to be long enough ....",
+    )
+    .unwrap();
+    expect_failure(&bad, "signature");
+}
+
+#[test]
+fn header_count_larger_than_data() {
+    let d = tempfile::tempdir().unwrap();
+    for ext in ["las", "laz"] {
+        let bad = d.path().join(format!("overcount.{ext}"));
+        write_valid(&bad, 3000);
+        let mut b = std::fs::read(&bad).unwrap();
+        // Legacy point count (LAS 1.2 header offset 107) += 1000.
+        let n = u32::from_le_bytes(b[107..111].try_into().unwrap()) + 1000;
+        b[107..111].copy_from_slice(&n.to_le_bytes());
+        std::fs::write(&bad, &b).unwrap();
+        expect_failure(&bad, "announces");
+    }
+}
+
+#[test]
+fn git_lfs_pointer() {
+    let d = tempfile::tempdir().unwrap();
+    let bad = d.path().join("pointer.laz");
+    std::fs::write(
+        &bad,
+        "version https://git-lfs.github.com/spec/v1\noid sha256:4d7a214614ab2935c943f9e0ff69d22eadbb8f32b1258daaa5e2ca24d17e2393\nsize 12345\n",
+    )
+    .unwrap();
+    expect_failure(&bad, "git lfs");
+}
+
+#[test]
+fn empty_file() {
+    let d = tempfile::tempdir().unwrap();
+    let bad = d.path().join("empty.las");
+    std::fs::write(&bad, b"").unwrap();
+    expect_failure(&bad, "empty");
+}
+
+#[test]
+fn nan_scale() {
+    let d = tempfile::tempdir().unwrap();
+    let bad = d.path().join("nan.las");
+    write_valid(&bad, 1000);
+    let mut b = std::fs::read(&bad).unwrap();
+    // x scale factor at header offset 131.
+    b[131..139].copy_from_slice(&f64::NAN.to_le_bytes());
+    std::fs::write(&bad, &b).unwrap();
+    expect_failure(&bad, "scale");
+}
+
+#[test]
+fn points_outside_header_bounds() {
+    let d = tempfile::tempdir().unwrap();
+    let bad = d.path().join("outside.las");
+    write_valid(&bad, 1000);
+    let mut b = std::fs::read(&bad).unwrap();
+    // Max X at header offset 179: shrink it so most points lie outside the announced bounds.
+    b[179..187].copy_from_slice(&10.0f64.to_le_bytes());
+    std::fs::write(&bad, &b).unwrap();
+    expect_failure(&bad, "outside the header bounds");
+}
+
+#[test]
+fn infeasible_budget_is_an_error_not_an_oom() {
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("dense.las");
+    let mut b = las::Builder::from((1, 2));
+    b.point_format = las::point::Format::new(0).unwrap();
+    let mut w = las::Writer::from_path(&p, b.into_header().unwrap()).unwrap();
+    for i in 0..300_000 {
+        // Every point at the same xy (a wall of 300 k points): no split can help.
+        w.write_point(las::Point {
+            x: 5.0,
+            y: 5.0,
+            z: i as f64 * 0.01,
+            ..Default::default()
+        })
+        .unwrap();
+    }
+    w.close().unwrap();
+    let out = d.path().join("out");
+    let o = tessera()
+        .args(["-q", "run"])
+        .arg(&p)
+        .args(["--memory-budget", "64", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("memory budget infeasible"), "{err}");
+    assert!(common::tiles_in(&out).is_empty());
+}
+
+#[test]
+fn usage_errors_exit_2() {
+    let o = tessera()
+        .args(["run", "x.las", "--out", "/tmp/x", "--set", "tiling.nope=3"])
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    let o = tessera().args(["frobnicate"]).output().unwrap();
+    assert_eq!(o.status.code(), Some(2));
+}

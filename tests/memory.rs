@@ -1,0 +1,58 @@
+//! Memory: the pipeline on ≥ 20 M synthetic points with `--memory-budget 256` keeps its peak
+//! RSS, as measured by the OS (`/usr/bin/time -v`, and VmHWM in summary.json), under 256 MiB.
+
+use std::process::Command;
+
+fn max_rss_kb(stderr: &str) -> Option<f64> {
+    stderr
+        .lines()
+        .find(|l| l.contains("Maximum resident set size"))
+        .and_then(|l| l.split(':').nth(1))
+        .and_then(|v| v.trim().parse().ok())
+}
+
+#[test]
+fn twenty_million_points_stay_under_256_mib() {
+    let d = tempfile::tempdir().unwrap();
+    let scene = d.path().join("scene");
+    let out = d.path().join("out");
+    let exe = env!("CARGO_BIN_EXE_tessera");
+    let st = Command::new(exe)
+        .args(["-q", "synth", "--length-m", "850", "--seed", "3", "--out"])
+        .arg(&scene)
+        .status()
+        .unwrap();
+    assert!(st.success());
+    let timed = std::path::Path::new("/usr/bin/time").exists();
+    let mut cmd = if timed {
+        let mut c = Command::new("/usr/bin/time");
+        c.arg("-v").arg(exe);
+        c
+    } else {
+        Command::new(exe)
+    };
+    let o = cmd
+        .args(["-q", "run", "--memory-budget", "256", "--out"])
+        .arg(&out)
+        .arg(&scene)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    let summary: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("summary.json")).unwrap()).unwrap();
+    let points = summary["points_out"].as_u64().unwrap();
+    assert!(points >= 20_000_000, "only {points} points");
+    assert_eq!(summary["points_in"], summary["points_out"]);
+    let hwm = summary["peak_rss_mb"].as_f64().unwrap();
+    eprintln!(
+        "{points} points, VmHWM {hwm:.1} MiB, tiles {}, split {}",
+        summary["tiles"], summary["tiles_split"]
+    );
+    assert!(hwm > 10.0 && hwm < 256.0, "VmHWM {hwm} MiB");
+    if timed {
+        let kb = max_rss_kb(&err).expect("time -v output");
+        eprintln!("/usr/bin/time max RSS {:.1} MiB", kb / 1024.0);
+        assert!(kb / 1024.0 < 256.0, "max RSS {kb} KiB");
+    }
+}
