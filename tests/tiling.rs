@@ -128,6 +128,8 @@ fn check(seed: u64, budget_mb: u64, n_per_file: usize) {
             format!("tiling.buffer_m={buffer}"),
             format!("pipeline.memory_budget_mb={budget_mb}"),
             "tiling.min_tile_size_m=0.05".into(),
+            // Four workers share the budget: ~60 k points per tile at 64 MiB.
+            format!("pipeline.threads={}", if budget_mb <= 64 { 4 } else { 2 }),
         ],
     )
     .unwrap();
@@ -188,7 +190,7 @@ fn random_tiles_see_exactly_their_core_and_buffer() {
 
 #[test]
 fn split_tiles_keep_exact_buffers() {
-    // 64 MiB leaves ~60 k points per tile: the dense blobs must be split.
+    // 64 MiB with four workers leaves ~60 k points per tile: the dense blobs must be split.
     for seed in 11..=13 {
         check(seed, 64, 100_000);
     }

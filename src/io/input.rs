@@ -352,6 +352,15 @@ pub fn read_file_chunks(
     let mut data: PointData = PointDataBuilder::new().for_header(reader.header()).build();
     let same = base_format(*reader.header().point_format()) == layout.format
         && reader.header().transforms() == &layout.transforms;
+    // Parallel LAZ decompression works on whole LAZ chunks: ask for a multiple of
+    // (chunk size × threads) so every call keeps all cores busy with equal shares.
+    let chunk_points = match reader.header().laz_vlr() {
+        Ok(vlr) if !vlr.uses_variable_size_chunks() && vlr.chunk_size() > 0 => {
+            let unit = vlr.chunk_size() as usize * rayon::current_num_threads().max(1);
+            chunk_points.div_ceil(unit).max(1) * unit
+        }
+        _ => chunk_points,
+    };
     let mut converted: Vec<u8> = Vec::new();
     let mut done: u64 = 0;
     let total = file.points;

@@ -4,4 +4,4 @@ pub mod input;
 pub mod output;
 
 pub use input::{scan_inputs, InputFile, InputSet};
-pub use output::{write_atomic, TileWriter};
+pub use output::{write_atomic, PendingTile, TileWriter};

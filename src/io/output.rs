@@ -68,26 +68,36 @@ impl TileWriter {
         self.extension
     }
 
-    /// Writes `records` (raw, in the run layout) to `dir/name.<ext>` atomically and returns
-    /// the final path.
-    pub fn write(&self, dir: &Path, name: &str, records: Vec<u8>) -> Result<PathBuf> {
+    /// Writes `records` (raw, in the run layout) to a temporary sibling of `dir/name.<ext>`;
+    /// [`PendingTile::commit`] then renames it into place. Splitting the two lets workers
+    /// compress tiles in parallel while one thread decides what becomes visible.
+    pub fn prepare(&self, dir: &Path, name: &str, records: Vec<u8>) -> Result<PendingTile> {
         let path = dir.join(format!("{name}.{}", self.extension));
         let tmp = tmp_path(&path);
-        let res = self.write_to(&tmp, records);
-        if let Err(e) = res {
+        if let Err(e) = self.write_to(&tmp, records) {
             let _ = std::fs::remove_file(&tmp);
             return Err(e);
         }
-        std::fs::rename(&tmp, &path).map_err(|e| Error::io(&path, e))?;
-        Ok(path)
+        Ok(PendingTile { tmp, path })
+    }
+
+    /// Writes `records` to `dir/name.<ext>` atomically and returns the final path.
+    pub fn write(&self, dir: &Path, name: &str, records: Vec<u8>) -> Result<PathBuf> {
+        self.prepare(dir, name, records)?.commit()
     }
 
     // No fsync: rename after a complete write already guarantees readers never see a partial
     // tile if the process dies; syncing every tile would cost more than the compression.
     fn write_to(&self, tmp: &Path, records: Vec<u8>) -> Result<()> {
         let file = File::create(tmp).map_err(|e| Error::io(tmp, e))?;
-        let mut writer = Writer::new(BufWriter::with_capacity(1 << 20, file), self.header.clone())
-            .map_err(|e| Error::las(tmp, e))?;
+        // One tile per worker thread: sequential compression keeps each worker on one core.
+        let opts = las::WriterOptions::default().with_laz_parallelism(las::LazParallelism::No);
+        let mut writer = Writer::with_options(
+            BufWriter::with_capacity(1 << 20, file),
+            self.header.clone(),
+            opts,
+        )
+        .map_err(|e| Error::las(tmp, e))?;
         let data = PointDataBuilder::new()
             .with_format(self.layout.format)
             .with_transforms(self.layout.transforms)
@@ -97,5 +107,28 @@ impl TileWriter {
         writer.close().map_err(|e| Error::las(tmp, e))?;
         let mut inner = writer.into_inner().map_err(|e| Error::las(tmp, e))?;
         inner.flush().map_err(|e| Error::io(tmp, e))
+    }
+}
+
+/// A completely written tile under its temporary name.
+#[derive(Debug)]
+pub struct PendingTile {
+    tmp: PathBuf,
+    path: PathBuf,
+}
+
+impl PendingTile {
+    /// Final path the tile gets on commit.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+    /// Renames the tile into place.
+    pub fn commit(self) -> Result<PathBuf> {
+        std::fs::rename(&self.tmp, &self.path).map_err(|e| Error::io(&self.path, e))?;
+        Ok(self.path)
+    }
+    /// Deletes the temporary file (the run failed).
+    pub fn abandon(self) {
+        let _ = std::fs::remove_file(&self.tmp);
     }
 }

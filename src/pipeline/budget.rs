@@ -25,7 +25,7 @@ pub struct BudgetPlan {
     pub spill_bytes: usize,
     /// Worker threads.
     pub workers: usize,
-    /// Tiles that may be in memory at once (workers + queued results + writer).
+    /// Tiles that may be in memory at once (one per worker).
     pub tiles_in_flight: usize,
     /// Bytes one tile point costs while processed.
     pub bytes_per_tile_point: usize,
@@ -51,9 +51,9 @@ impl BudgetPlan {
         let chunk_points =
             ((reader_bytes / 4) / (record_len as u64 * 2)).clamp(4096, 1 << 20) as usize;
         let spill_bytes = (usable / 10) as usize;
-        // In memory at once: one tile per worker, one queued for the writer, one being
-        // written (its records only, but count it whole).
-        let tiles_in_flight = workers + 2;
+        // In memory at once: one tile per worker (workers compress their own tiles; only
+        // file names travel to the writer).
+        let tiles_in_flight = workers;
         // Per point: raw record + id + xyz + the stages' working memory, with 25 % slack for
         // allocator growth.
         let bytes_per_tile_point = (record_len + 8 + 24 + stage_bytes_per_point) * 5 / 4;

@@ -5,8 +5,9 @@
 //! reader ──chunks(bounded)──▶ tiler ──jobs(bounded)──▶ workers ×N ──results(bounded)──▶ writer
 //!   (LAS/LAZ, fill_points)     (spill files)            (load/split, stages)             (LAZ, atomic)
 //! ```
-//! Jobs carry only spill-file paths; tiles are loaded by the worker that processes them, so
-//! the tiles in memory at once are bounded by the worker count plus the result channel depth.
+//! Jobs carry only spill-file paths; a tile is loaded, processed and compressed (to a
+//! temporary file) by one worker, and the writer only commits finished files by renaming, so
+//! the tiles in memory at once are bounded by the worker count.
 
 pub mod budget;
 pub mod stage;
@@ -14,8 +15,7 @@ pub mod stage;
 use crate::config::Config;
 use crate::error::{Error, Result};
 use crate::io::input::read_file_chunks;
-use crate::io::{scan_inputs, write_atomic, InputSet, TileWriter};
-use crate::model::Tile;
+use crate::io::{scan_inputs, write_atomic, InputSet, PendingTile, TileWriter};
 use crate::report::{peak_rss_mb, Summary, TileSummary};
 use crate::tiling::{load_tile, schedule, split_job, Grid, TileJob, Tiler};
 use budget::BudgetPlan;
@@ -38,8 +38,12 @@ enum ReadMsg {
     FileDone(usize),
 }
 
+/// A processed tile, compressed by its worker and waiting to be committed by the writer.
 struct Processed {
-    tile: Tile,
+    name: String,
+    pending: PendingTile,
+    n_core: u64,
+    buffer_points: u64,
     report: TileReport,
     split_root: Option<String>,
 }
@@ -260,7 +264,9 @@ fn run_inner(
                     if failure.failed() {
                         break;
                     }
-                    if let Err(e) = work(job, set, spill_dir, cfg, plan, stages, &res_tx) {
+                    if let Err(e) = work(
+                        job, set, out_dir, spill_dir, cfg, plan, stages, writer, &res_tx,
+                    ) {
                         failure.set(e);
                         break;
                     }
@@ -269,24 +275,24 @@ fn run_inner(
         }
         drop(res_tx);
         drop(job_rx);
-        // Writer (this thread).
+        // Writer (this thread): commits tiles in arrival order and keeps the books.
         for p in res_rx.iter() {
             if failure.failed() {
+                p.pending.abandon();
                 continue;
             }
             let t = Instant::now();
             let Processed {
-                mut tile,
+                name,
+                pending,
+                n_core,
+                buffer_points,
                 report,
                 split_root,
             } = p;
-            let name = tile.name.to_string();
-            let n_core = tile.n_core;
-            let buffer_points = (tile.len() - n_core) as u64;
-            tile.records.truncate(n_core * layout.record_len);
-            match writer.write(out_dir, &name, std::mem::take(&mut tile.records)) {
+            match pending.commit() {
                 Ok(path) => {
-                    summary.points_out += n_core as u64;
+                    summary.points_out += n_core;
                     if let Some(root) = split_root {
                         if !summary.split_tiles.contains(&root) {
                             summary.split_tiles.push(root);
@@ -301,7 +307,7 @@ fn run_inner(
                             .file_name()
                             .map(|f| f.to_string_lossy().into_owned())
                             .unwrap_or_default(),
-                        points: n_core as u64,
+                        points: n_core,
                         buffer_points,
                         stats: report.stats,
                     });
@@ -337,14 +343,17 @@ fn run_inner(
 }
 
 /// Processes one job: splits it while it is too big for the budget, then loads and runs the
-/// stages on each resulting tile.
+/// stages on each resulting tile and compresses its core points to a temporary file.
+#[allow(clippy::too_many_arguments)]
 fn work(
     job: TileJob,
     set: &InputSet,
+    out_dir: &Path,
     spill_dir: &Path,
     cfg: &Config,
     plan: &BudgetPlan,
     stages: &[Box<dyn Stage>],
+    writer: &TileWriter,
     res_tx: &Sender<Processed>,
 ) -> Result<()> {
     let root = job.name.to_string();
@@ -374,12 +383,27 @@ fn work(
                 .seconds
                 .insert(st.name().to_string(), t.elapsed().as_secs_f64());
         }
+        let name = tile.name.to_string();
+        let n_core = tile.n_core;
+        let buffer_points = (tile.len() - n_core) as u64;
+        let mut records = std::mem::take(&mut tile.records);
+        drop(tile);
+        records.truncate(n_core * set.layout.record_len);
+        let t = Instant::now();
+        let pending = writer.prepare(out_dir, &name, records)?;
+        report
+            .seconds
+            .insert("compress".into(), t.elapsed().as_secs_f64());
         let p = Processed {
-            tile,
+            name,
+            pending,
+            n_core: n_core as u64,
+            buffer_points,
             report,
             split_root: was_split.then(|| root.clone()),
         };
-        if res_tx.send(p).is_err() {
+        if let Err(e) = res_tx.send(p) {
+            e.into_inner().pending.abandon();
             return Ok(());
         }
     }
