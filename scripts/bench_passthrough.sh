@@ -25,7 +25,7 @@ for i in $(seq "$RUNS"); do
   p=$(awk '/read LAZ \(lazrs parallel\)/{r=$(NF-1)} /write LAZ \(lazrs parallel\)/{w=$(NF-1)} END{printf "%.3f", r+w}' "$W/lb.txt")
   peer+=("$p")
   rm -rf "$W/out"
-  s=$( { /usr/bin/time -f "%e %M" $BIN -q run "$W/lb/io_bench.laz" --out "$W/out" >/dev/null; } 2>&1 | tail -1)
+  s=$( { /usr/bin/time -f "%e %M" $BIN -q run "$W/lb/io_bench.laz" --out "$W/out" --set 'stages.run=["stats"]' >/dev/null; } 2>&1 | tail -1)
   tess+=("$(echo "$s" | cut -d' ' -f1)")
   echo "run $i: laspy read+write ${p} s, tessera ${s% *} s (max RSS $(( ${s#* } / 1024 )) MiB)"
 done

@@ -95,9 +95,45 @@ pub enum Command {
         #[command(flatten)]
         opts: RunOpts,
     },
+    /// Evaluate results against reference labels.
+    Eval {
+        /// What to evaluate.
+        #[command(subcommand)]
+        what: EvalCommand,
+    },
     /// Print facts about a LAS/LAZ file.
     Info {
         /// The file.
         file: PathBuf,
+    },
+}
+
+/// Evaluations.
+#[derive(Debug, Subcommand)]
+pub enum EvalCommand {
+    /// Ground filtering: Type I, Type II, total error, Cohen's kappa (ISPRS WG III/3).
+    Ground {
+        /// Reference LAS/LAZ file or directory.
+        #[arg(long)]
+        reference: PathBuf,
+        /// Result LAS/LAZ file or directory of tiles.
+        #[arg(long)]
+        result: PathBuf,
+        /// Reference classes that mean ground (comma-separated; ISPRS uses 2).
+        #[arg(long, value_delimiter = ',', default_value = "2")]
+        ref_ground_class: Vec<u8>,
+        /// Result classes that mean ground.
+        #[arg(long, value_delimiter = ',', default_value = "2")]
+        result_ground_class: Vec<u8>,
+        /// Coordinate precision for matching points, metres.
+        #[arg(long, default_value_t = 0.001)]
+        match_precision_m: f64,
+        /// Score only reference points found in the result (e.g. ISPRS samples inside a
+        /// filtered site file); otherwise a missing point is an error.
+        #[arg(long)]
+        allow_unmatched: bool,
+        /// Print JSON instead of a table.
+        #[arg(long)]
+        json: bool,
     },
 }

@@ -51,6 +51,16 @@ pub struct StagesParams {
     pub run: Vec<String>,
 }
 
+/// Ground stage settings.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GroundSection {
+    /// Class for non-ground points (-1 = keep the input class).
+    pub nonground_class: i64,
+    /// Filter parameters.
+    pub params: crate::ground::GroundParams,
+}
+
 /// The whole validated configuration.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -63,6 +73,8 @@ pub struct Config {
     pub output: OutputParams,
     /// `[stages]`
     pub stages: StagesParams,
+    /// `[ground]`
+    pub ground: GroundSection,
 }
 
 impl Config {
@@ -142,6 +154,16 @@ impl Config {
             )));
         }
         self.output_point_format()?;
+        if !(-1..=255).contains(&self.ground.nonground_class) {
+            return Err(Error::Config(format!(
+                "ground.nonground_class must be -1 (keep) or 0..=255, got {}",
+                self.ground.nonground_class
+            )));
+        }
+        self.ground
+            .params
+            .validate()
+            .map_err(|e| Error::Config(format!("ground.params: {e}")))?;
         if self.stages.run.is_empty() {
             return Err(Error::Config(
                 "stages.run must name at least one stage".into(),
@@ -208,6 +230,19 @@ mod tests {
         assert_eq!(c.tiling.tile_size_m, 50.0);
         assert_eq!(c.pipeline.memory_budget_mb, 1024);
         assert_eq!(c.output_point_format().unwrap(), None);
+    }
+
+    #[test]
+    fn ground_presets_in_config_match_the_library() {
+        // config/ is the single source of defaults for runs; the library's constructors must
+        // not drift from it (the ISPRS/KITTI gates test the library values).
+        let c = Config::defaults().unwrap();
+        assert_eq!(c.ground.params, crate::ground::GroundParams::mobile());
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("config/airborne.toml");
+        let a = Config::load(Some(&path), &[]).unwrap();
+        assert_eq!(a.ground.params, crate::ground::GroundParams::default());
+        assert!(a.tiling.buffer_m >= a.ground.params.seed_cell_m);
+        assert!(c.tiling.buffer_m >= c.ground.params.seed_cell_m);
     }
 
     #[test]

@@ -7,6 +7,8 @@
 pub mod cli;
 pub mod config;
 pub mod error;
+pub mod eval;
+pub mod ground;
 pub mod io;
 pub mod model;
 pub mod pipeline;

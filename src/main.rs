@@ -5,7 +5,7 @@ use anyhow::Context;
 use clap::Parser;
 use std::io::IsTerminal;
 use std::process::ExitCode;
-use tessera::cli::{Cli, Command};
+use tessera::cli::{Cli, Command, EvalCommand};
 use tessera::{Config, Error};
 
 fn main() -> ExitCode {
@@ -167,6 +167,56 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             tracing::info!("demo scene: {} points in {} files", s.points, s.files);
             process(&[scene_dir], &out.join("tiles"), &cfg, cli.quiet)
         }
+        Command::Eval { what } => match what {
+            EvalCommand::Ground {
+                reference,
+                result,
+                ref_ground_class,
+                result_ground_class,
+                match_precision_m,
+                allow_unmatched,
+                json,
+            } => {
+                let (s, scored) = tessera::eval::eval_ground(
+                    &reference,
+                    &result,
+                    &ref_ground_class,
+                    &result_ground_class,
+                    match_precision_m,
+                    allow_unmatched,
+                )?;
+                if json {
+                    println!(
+                        "{}",
+                        serde_json::json!({
+                            "reference": reference, "result": result, "scored_points": scored,
+                            "n_ground_ref": s.n_ground_ref, "n_object_ref": s.n_object_ref,
+                            "type1_pct": s.type1, "type2_pct": s.type2, "total_pct": s.total,
+                            "kappa_pct": s.kappa, "a": s.a, "b": s.b, "c": s.c, "d": s.d,
+                        })
+                    );
+                } else {
+                    println!(
+                        "reference: {} ({} ground, {} object)",
+                        reference.display(),
+                        s.n_ground_ref,
+                        s.n_object_ref
+                    );
+                    println!(
+                        "result:    {} ({scored} reference points scored)",
+                        result.display()
+                    );
+                    println!("             result ground  result object");
+                    println!("ref ground   {:>13}  {:>13}", s.a, s.b);
+                    println!("ref object   {:>13}  {:>13}", s.c, s.d);
+                    println!(
+                        "Type I  {:6.2} %   Type II {:6.2} %   total {:6.2} %   kappa {:6.2} %",
+                        s.type1, s.type2, s.total, s.kappa
+                    );
+                }
+                Ok(())
+            }
+        },
         Command::Info { file } => {
             let f = tessera::io::input::scan_file(&file, 0)?;
             let h = &f.header;

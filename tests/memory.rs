@@ -32,7 +32,15 @@ fn twenty_million_points_stay_under_256_mib() {
         Command::new(exe)
     };
     let o = cmd
-        .args(["-q", "run", "--memory-budget", "256", "--out"])
+        .args([
+            "-q",
+            "run",
+            "--memory-budget",
+            "256",
+            "--set",
+            "stages.run=[\"stats\"]",
+            "--out",
+        ])
         .arg(&out)
         .arg(&scene)
         .output()

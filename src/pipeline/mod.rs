@@ -10,6 +10,7 @@
 //! the tiles in memory at once are bounded by the worker count.
 
 pub mod budget;
+pub mod ground_stage;
 pub mod stage;
 
 use crate::config::Config;
@@ -74,7 +75,7 @@ pub fn run(
     cfg: &Config,
     progress: ProgressFn,
 ) -> Result<Summary> {
-    let stages = build_stages(&cfg.stages.run)?;
+    let stages = build_stages(cfg)?;
     run_with_stages(inputs, out_dir, cfg, &stages, progress)
 }
 

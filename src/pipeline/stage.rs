@@ -80,14 +80,19 @@ impl Stage for StatsStage {
     }
 }
 
-/// Builds the stages named in the configuration.
-pub fn build_stages(names: &[String]) -> Result<Vec<Box<dyn Stage>>> {
-    names
+/// Builds the stages named in `cfg.stages.run`, each from its own section.
+pub fn build_stages(cfg: &crate::config::Config) -> Result<Vec<Box<dyn Stage>>> {
+    cfg.stages
+        .run
         .iter()
         .map(|n| match n.as_str() {
             "stats" => Ok(Box::new(StatsStage) as Box<dyn Stage>),
+            "ground" => Ok(
+                Box::new(super::ground_stage::GroundStage::new(cfg.ground.clone()))
+                    as Box<dyn Stage>,
+            ),
             other => Err(crate::error::Error::Config(format!(
-                "stages.run: unknown stage \"{other}\" (known: stats)"
+                "stages.run: unknown stage \"{other}\" (known: ground, stats)"
             ))),
         })
         .collect()

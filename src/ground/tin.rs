@@ -1,0 +1,520 @@
+//! Progressive TIN densification on a spade Delaunay triangulation.
+//!
+//! Coordinates are shifted to the tile's lower-left corner so that the triangulation works
+//! with small numbers (UTM eastings/northings lose ~7 digits of precision in the orientation
+//! predicates otherwise).
+
+use rayon::prelude::*;
+use spade::handles::{FixedFaceHandle, FixedVertexHandle, InnerTag};
+use spade::{DelaunayTriangulation, HasPosition, Point2, PositionInTriangulation, Triangulation};
+
+use super::border::{BorderLevels, Side};
+use super::geometry::{facet_test, height_above, plane_at, Frame};
+use super::seeds::Grid;
+use super::{GroundClass, GroundError, GroundParams};
+
+/// Source index of the virtual vertices placed on the expanded bounding box.
+const VIRTUAL: u32 = u32::MAX;
+/// "No face recorded yet" marker.
+const NO_FACE: u32 = u32::MAX;
+
+/// A TIN vertex: local xy, z and the index of the input point (or [`VIRTUAL`]).
+#[derive(Clone, Copy, Debug)]
+struct TinVertex {
+    pos: Point2<f64>,
+    z: f64,
+    src: u32,
+}
+
+impl HasPosition for TinVertex {
+    type Scalar = f64;
+    fn position(&self) -> Point2<f64> {
+        self.pos
+    }
+}
+
+type Tin = DelaunayTriangulation<TinVertex>;
+
+/// Per-point state during densification.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum State {
+    /// Not (yet) ground.
+    Candidate,
+    /// Vertex of the TIN.
+    InTin,
+    /// Same xy as a TIN vertex: never inserted (spade would overwrite the vertex); the final
+    /// pass decides by its height above that vertex.
+    Duplicate,
+}
+
+/// The inner face that contains (or touches) a located position.
+fn containing_face(tin: &Tin, loc: PositionInTriangulation) -> Option<FixedFaceHandle<InnerTag>> {
+    match loc {
+        PositionInTriangulation::OnFace(f) => Some(f),
+        PositionInTriangulation::OnEdge(e) => {
+            let edge = tin.directed_edge(e);
+            edge.face()
+                .as_inner()
+                .or_else(|| edge.rev().face().as_inner())
+                .map(|f| f.fix())
+        }
+        _ => None,
+    }
+}
+
+fn face_vertices(tin: &Tin, f: FixedFaceHandle<InnerTag>) -> ([[f64; 3]; 3], FixedVertexHandle) {
+    let vs = tin.face(f).vertices();
+    let mut out = [[0.0; 3]; 3];
+    for (o, v) in out.iter_mut().zip(vs.iter()) {
+        let d = v.data();
+        *o = [d.pos.x, d.pos.y, d.z];
+    }
+    (out, vs[0].fix())
+}
+
+/// Inserts a batch of vertices (in Morton order, each chaining the previous as location hint)
+/// and updates the point states. Returns the handles of the vertices that were created.
+///
+/// Duplicate xy: spade overwrites the data of an existing vertex at the same position. The
+/// callers guarantee that a batch never hits a vertex from *before* the batch (every winner was
+/// located strictly inside a facet or on an edge), so an overwritten vertex is always one of
+/// this batch and its data is restored from `data` without an extra `locate_vertex` per
+/// insertion. The lower of the two stays in the TIN; the other becomes `State::Duplicate` and
+/// is judged by the final pass.
+fn insert_batch(
+    tin: &mut Tin,
+    batch: &[TinVertex],
+    state: &mut [State],
+    duplicates: &mut Vec<u32>,
+) -> Result<Vec<FixedVertexHandle>, GroundError> {
+    let start = tin.num_vertices();
+    let mut data: Vec<TinVertex> = Vec::with_capacity(batch.len());
+    let mut created = Vec::with_capacity(batch.len());
+    let mut hint: Option<FixedVertexHandle> = None;
+    let mut mark = |src: u32, s: State, duplicates: &mut Vec<u32>| {
+        if src != VIRTUAL {
+            state[src as usize] = s;
+            if s == State::Duplicate {
+                duplicates.push(src);
+            }
+        }
+    };
+    for &v in batch {
+        let before = tin.num_vertices();
+        let h = match hint {
+            Some(hint) => tin.insert_with_hint(v, hint)?,
+            None => tin.insert(v)?,
+        };
+        hint = Some(h);
+        if tin.num_vertices() > before {
+            data.push(v);
+            created.push(h);
+            mark(v.src, State::InTin, duplicates);
+            continue;
+        }
+        match h.index().checked_sub(start).and_then(|i| data.get_mut(i)) {
+            Some(old) if old.z <= v.z => {
+                *tin.vertex_data_mut(h) = *old;
+                mark(v.src, State::Duplicate, duplicates);
+            }
+            Some(old) => {
+                mark(old.src, State::Duplicate, duplicates);
+                *old = v;
+                mark(v.src, State::InTin, duplicates);
+            }
+            // Not reachable by construction (see above); the new point then stays in the TIN.
+            None => mark(v.src, State::InTin, duplicates),
+        }
+    }
+    Ok(created)
+}
+
+/// Builds the TIN from the seeds, densifies it and classifies all points.
+pub fn densify_and_classify(
+    points: &[[f64; 3]],
+    seeds: &[u32],
+    params: &GroundParams,
+) -> Result<Vec<GroundClass>, GroundError> {
+    let n = points.len();
+    let grid = Grid::new(points, params.seed_cell_m)?;
+    let extent_x = grid.nx as f64 * grid.cell_m;
+    let extent_y = grid.ny as f64 * grid.cell_m;
+    let frame = Frame {
+        origin: [grid.min_x, grid.min_y],
+        scale: f64::from(0xF_FFFFu32) / extent_x.max(extent_y).max(1e-9),
+    };
+
+    let mut state = vec![State::Candidate; n];
+    let mut tin = Tin::new();
+
+    // --- initial TIN: seeds + virtual vertices on the expanded bounding box --------------
+    let mut initial: Vec<TinVertex> = Vec::with_capacity(seeds.len() * 2 + 4);
+    for &s in seeds {
+        let p = frame.local(&points[s as usize]);
+        initial.push(TinVertex {
+            pos: Point2::new(p[0], p[1]),
+            z: p[2],
+            src: s,
+        });
+    }
+    // Why virtual vertices: the seeds' convex hull is smaller than the tile, so points near
+    // the border would lie outside the TIN. Each border-cell seed is copied onto the bounding
+    // box expanded by a margin, plus the four corners, at the low level of the points in the
+    // border strip next to it (`BorderLevels`). The seed's own z (flat extrapolation) would
+    // leave the uphill border of a slope far below the terrain, where no point passes the tests.
+    // (A least-squares plane extrapolation from the 5x5 neighbouring seeds was measured too:
+    // worse on the ISPRS ramp sample samp24, 10.9 % vs 8.0 % total error, and no better overall.)
+    let mut max_x = 0.0f64;
+    let mut max_y = 0.0f64;
+    for p in points {
+        let l = frame.local(p);
+        max_x = max_x.max(l[0]);
+        max_y = max_y.max(l[1]);
+    }
+    let margin = 1.0;
+    let (lo_x, lo_y, hi_x, hi_y) = (-margin, -margin, max_x + margin, max_y + margin);
+    let n_seed_vertices = initial.len();
+    let seeds_xyz: Vec<[f64; 3]> = initial.iter().map(|v| [v.pos.x, v.pos.y, v.z]).collect();
+    let border = BorderLevels::new(points, &frame, &grid, max_x, max_y);
+    // One virtual copy per border cell and side, of the cell's lowest seed. Why: with the
+    // phase-shifted seed grids a border cell holds several seeds at different positions along
+    // the side, but the border level is the low level of the whole cell's strip; copies of
+    // higher seeds (further up a slope along the side) at that low level would pull the TIN
+    // below the terrain at the border (tests/geometry.rs, sloped plane). The lowest seed of the
+    // cell is where the strip's low level belongs, as with a single seed grid.
+    let mut lowest_at: [Vec<Option<usize>>; 4] = [
+        vec![None; grid.ny],
+        vec![None; grid.ny],
+        vec![None; grid.nx],
+        vec![None; grid.nx],
+    ];
+    for (i, v) in initial.iter().enumerate().take(n_seed_vertices) {
+        let (ix, iy) = grid.cell_xy(v.pos.x + grid.min_x, v.pos.y + grid.min_y);
+        let mut consider = |side: usize, cell: usize| {
+            let slot = &mut lowest_at[side][cell];
+            if slot.is_none_or(|j| initial[j].z > v.z) {
+                *slot = Some(i);
+            }
+        };
+        if ix == 0 {
+            consider(0, iy);
+        }
+        if ix + 1 == grid.nx {
+            consider(1, iy);
+        }
+        if iy == 0 {
+            consider(2, ix);
+        }
+        if iy + 1 == grid.ny {
+            consider(3, ix);
+        }
+    }
+    let sides = [Side::West, Side::East, Side::South, Side::North];
+    for (side_index, cells) in lowest_at.iter().enumerate() {
+        let side = sides[side_index];
+        for (cell, chosen) in cells.iter().enumerate() {
+            let Some(i) = *chosen else {
+                continue;
+            };
+            let v = initial[i];
+            let (x, y) = match side {
+                Side::West => (lo_x, v.pos.y),
+                Side::East => (hi_x, v.pos.y),
+                Side::South => (v.pos.x, lo_y),
+                Side::North => (v.pos.x, hi_y),
+            };
+            initial.push(TinVertex {
+                pos: Point2::new(x, y),
+                z: border.level(side, cell).unwrap_or(v.z),
+                src: VIRTUAL,
+            });
+        }
+    }
+    let corners = [
+        ([lo_x, lo_y], Side::West, 0, Side::South, 0),
+        ([hi_x, lo_y], Side::East, 0, Side::South, grid.nx - 1),
+        ([lo_x, hi_y], Side::West, grid.ny - 1, Side::North, 0),
+        (
+            [hi_x, hi_y],
+            Side::East,
+            grid.ny - 1,
+            Side::North,
+            grid.nx - 1,
+        ),
+    ];
+    // Corner: the lower of the two adjacent side levels. (A level taken from the corner square
+    // itself follows slopes better but was measured worse on ISPRS: 4.52–4.59 % vs 4.46 %,
+    // since the few points of a corner square are often on an object.)
+    for (corner, s1, c1, s2, c2) in corners {
+        let nearest = seeds_xyz.iter().min_by(|a, b| {
+            let da = (a[0] - corner[0]).powi(2) + (a[1] - corner[1]).powi(2);
+            let db = (b[0] - corner[0]).powi(2) + (b[1] - corner[1]).powi(2);
+            da.total_cmp(&db)
+        });
+        let z = match (border.level(s1, c1), border.level(s2, c2), nearest) {
+            (Some(a), Some(b), _) => Some(a.min(b)),
+            (Some(a), None, _) | (None, Some(a), _) => Some(a),
+            (None, None, Some(near)) => Some(near[2]),
+            (None, None, None) => None,
+        };
+        if let Some(z) = z {
+            initial.push(TinVertex {
+                pos: Point2::new(corner[0], corner[1]),
+                z,
+                src: VIRTUAL,
+            });
+        }
+    }
+    initial.sort_by_cached_key(|v| frame.key(v.pos.x - lo_x, v.pos.y - lo_y));
+    let mut duplicates: Vec<u32> = Vec::new();
+    insert_batch(&mut tin, &initial, &mut state, &mut duplicates)?;
+    drop(initial);
+    // A degenerate TIN (all seeds on one line, e.g. a single seed in a narrow strip) still
+    // gets the corners, so this only happens without seeds at all.
+    if tin.num_inner_faces() == 0 {
+        return Ok(vec![GroundClass::Ground; n]);
+    }
+
+    // --- candidates in Morton order ------------------------------------------------------
+    let mut order: Vec<u32> = (0..n as u32)
+        .filter(|&i| state[i as usize] == State::Candidate)
+        .collect();
+    order.sort_by_cached_key(|&i| {
+        let l = frame.local(&points[i as usize]);
+        frame.key(l[0], l[1])
+    });
+    let mut face_of: Vec<u32> = vec![NO_FACE; order.len()];
+    // A vertex of the facet that contained the candidate last time: the best location hint
+    // when dirty candidates are scattered (vertex indices are stable while only inserting).
+    let mut hint_of: Vec<u32> = vec![NO_FACE; order.len()];
+    let mut dirty: Vec<bool> = vec![true; tin.num_all_faces()];
+    let sin_max_angle = params.max_angle_deg.to_radians().sin();
+    let max_dist = params.max_distance_m;
+    let min_added = ((params.min_added_fraction * n as f64).ceil() as usize).max(1);
+
+    let mut best: Vec<(u32, f64)> = Vec::new();
+    // Bulk acceptance: candidates that pass both tests with a wide margin (a fraction of the
+    // thresholds) are inserted even when they are not their facet's best. They are ground
+    // beyond doubt, and inserting them all at once cuts the number of iterations (and of
+    // re-tests of the points in split facets) ~3x on dense scans with no measurable change of
+    // the ISPRS errors (mean total 4.62 % with and without at 0.5).
+    let strong_dist = params.bulk_accept_fraction * max_dist;
+    let strong_sin = (params.bulk_accept_fraction * params.max_angle_deg)
+        .to_radians()
+        .sin();
+    let mut extra: Vec<u32> = Vec::new();
+    let mut duplicates: Vec<u32> = Vec::new();
+    for _iteration in 0..params.max_iterations {
+        best.clear();
+        best.resize(tin.num_all_faces(), (u32::MAX, f64::INFINITY));
+        let mut hint: Option<FixedVertexHandle> = None;
+        for (k, &pi) in order.iter().enumerate() {
+            let fo = face_of[k];
+            if fo != NO_FACE && !dirty.get(fo as usize).copied().unwrap_or(true) {
+                continue; // facet unchanged since the last test: same verdict
+            }
+            let p = frame.local(&points[pi as usize]);
+            let pos = Point2::new(p[0], p[1]);
+            let own_hint = hint_of[k];
+            let loc = if own_hint != NO_FACE {
+                tin.locate_with_hint(pos, FixedVertexHandle::from_index(own_hint as usize))
+            } else {
+                match hint {
+                    Some(h) => tin.locate_with_hint(pos, h),
+                    None => tin.locate(pos),
+                }
+            };
+            if let PositionInTriangulation::OnVertex(v) = loc {
+                // Duplicate xy (walls, multiple returns): never replaces the TIN vertex.
+                state[pi as usize] = State::Duplicate;
+                duplicates.push(pi);
+                hint = Some(v);
+                continue;
+            }
+            let Some(f) = containing_face(&tin, loc) else {
+                continue; // outside the hull: cannot happen with the corner vertices
+            };
+            face_of[k] = f.index() as u32;
+            let (verts, v0) = face_vertices(&tin, f);
+            hint = Some(v0);
+            hint_of[k] = v0.index() as u32;
+            // Axelsson's mirror points (test p mirrored through the nearest facet vertex when
+            // it fails) were tried: they let the TIN climb onto roofs (ISPRS mean 15.3 %).
+            // Perpendicular distance; the vertical one was measured worse (4.87 %): it is
+            // stricter on steep facets.
+            let t = facet_test(&verts, p, params.min_edge_m);
+            if t.all_edges_short || t.dist >= max_dist || t.max_sin_angle >= sin_max_angle {
+                continue;
+            }
+            if t.dist < strong_dist && t.max_sin_angle < strong_sin {
+                extra.push(k as u32);
+            }
+            // One point per facet: the lowest relative to the facet plane (signed height), so
+            // points below the current TIN win over points just above it. Measured against
+            // "closest to the plane": ISPRS mean 4.40 % / 85.1 % vs 4.46 % / 85.0 %; smallest
+            // angle 4.51 %.
+            let rank = height_above(&verts, p);
+            let slot = &mut best[f.index()];
+            if rank < slot.1 {
+                *slot = (k as u32, rank);
+            }
+        }
+
+        let mut winners: Vec<u32> = best
+            .iter()
+            .filter(|b| b.0 != u32::MAX)
+            .map(|b| b.0)
+            .collect();
+        winners.append(&mut extra);
+        winners.sort_unstable();
+        winners.dedup();
+        let batch: Vec<TinVertex> = winners
+            .iter()
+            .map(|&k| {
+                let pi = order[k as usize];
+                let p = frame.local(&points[pi as usize]);
+                TinVertex {
+                    pos: Point2::new(p[0], p[1]),
+                    z: p[2],
+                    src: pi,
+                }
+            })
+            .collect();
+        let new_vertices = insert_batch(&mut tin, &batch, &mut state, &mut duplicates)?;
+        drop(batch);
+
+        // Every face slot that changed during the batch is incident to a new vertex
+        // (insertion and Lawson flips only create faces around the inserted vertex), so the
+        // faces around the new vertices are exactly the ones whose points need a new test.
+        dirty.clear();
+        dirty.resize(tin.num_all_faces(), false);
+        for &h in &new_vertices {
+            for e in tin.vertex(h).out_edges() {
+                if let Some(f) = e.face().as_inner() {
+                    dirty[f.fix().index()] = true;
+                }
+            }
+        }
+        // Drop inserted / duplicate points from the candidate list.
+        let mut w = 0;
+        for k in 0..order.len() {
+            if state[order[k] as usize] == State::Candidate {
+                order[w] = order[k];
+                face_of[w] = face_of[k];
+                hint_of[w] = hint_of[k];
+                w += 1;
+            }
+        }
+        order.truncate(w);
+        face_of.truncate(w);
+        hint_of.truncate(w);
+        if winners.len() < min_added {
+            break;
+        }
+    }
+    drop(best);
+    drop(dirty);
+    order.extend_from_slice(&duplicates);
+    drop(duplicates);
+
+    // --- spike removal (lasground `-spike`): vertices standing above the plane of their TIN
+    // neighbours are small objects (cars, bushes, chimneys) that slipped in; they are removed
+    // and judged again by the final pass.
+    if params.tin_spike_m > 0.0 {
+        for _round in 0..3 {
+            let mut spikes: Vec<Point2<f64>> = Vec::new();
+            let mut ring: Vec<[f64; 3]> = Vec::with_capacity(16);
+            for v in tin.vertices() {
+                let d = v.data();
+                if d.src == VIRTUAL {
+                    continue;
+                }
+                ring.clear();
+                for e in v.out_edges() {
+                    let to = e.to();
+                    let w = to.data();
+                    ring.push([w.pos.x, w.pos.y, w.z]);
+                }
+                // Two conditions: above the neighbours' plane (slope-proof) and above at least
+                // 3/4 of the neighbours individually (so the upper rim of a terrain step, whose
+                // neighbours are half below, is not taken for a spike). Plane alone: ISPRS
+                // samp53 (terrain steps) 10.5 -> 13.0 %. A two-ring neighbourhood (to catch
+                // small clusters) was measured too: mean 4.51 % vs 4.46 %, worse on rural samples.
+                let below = ring
+                    .iter()
+                    .filter(|w| w[2] < d.z - params.tin_spike_m)
+                    .count();
+                if let (Some((z, _, _)), true) = (
+                    plane_at(&ring, d.pos.x, d.pos.y),
+                    4 * below >= 3 * ring.len(),
+                ) {
+                    if d.z - z > params.tin_spike_m {
+                        spikes.push(d.pos);
+                    }
+                }
+            }
+            if spikes.is_empty() {
+                break;
+            }
+            for pos in spikes {
+                if let Some(v) = tin.locate_and_remove(pos) {
+                    state[v.src as usize] = State::Candidate;
+                    order.push(v.src);
+                }
+            }
+        }
+    }
+
+    // --- final pass: offset above / below the final TIN ----------------------------------
+    let below_m = if params.mobile_mapping {
+        params.offset_m
+    } else {
+        params.max_distance_m
+    };
+    let verdicts: Vec<(u32, GroundClass)> = order
+        .par_chunks(4096)
+        .flat_map_iter(|chunk| {
+            let mut hint: Option<FixedVertexHandle> = None;
+            let tin = &tin;
+            let frame = &frame;
+            chunk.iter().map(move |&pi| {
+                let p = frame.local(&points[pi as usize]);
+                let pos = Point2::new(p[0], p[1]);
+                let loc = match hint {
+                    Some(h) => tin.locate_with_hint(pos, h),
+                    None => tin.locate(pos),
+                };
+                let dz = if let PositionInTriangulation::OnVertex(v) = loc {
+                    hint = Some(v);
+                    Some(p[2] - tin.vertex(v).data().z)
+                } else if let Some(f) = containing_face(tin, loc) {
+                    let (verts, v0) = face_vertices(tin, f);
+                    hint = Some(v0);
+                    Some(height_above(&verts, p))
+                } else {
+                    None
+                };
+                let class = match dz {
+                    Some(dz) if dz <= params.offset_m && dz >= -below_m => GroundClass::Ground,
+                    Some(dz) if params.low_noise_m.is_some_and(|low| dz < -low) => {
+                        GroundClass::LowNoise
+                    }
+                    _ => GroundClass::NonGround,
+                };
+                (pi, class)
+            })
+        })
+        .collect();
+
+    let mut out: Vec<GroundClass> = state
+        .iter()
+        .map(|s| match s {
+            State::InTin => GroundClass::Ground,
+            State::Candidate | State::Duplicate => GroundClass::NonGround,
+        })
+        .collect();
+    for (pi, class) in verdicts {
+        out[pi as usize] = class;
+    }
+    Ok(out)
+}

@@ -1,0 +1,85 @@
+//! The ground stage: progressive TIN densification on each tile's core + buffer points;
+//! writes ASPRS class 2 (ground), 7 (low noise, if enabled) and the configured class for the
+//! rest.
+
+use super::stage::{Stage, TileReport};
+use crate::config::GroundSection;
+use crate::error::{Error, Result};
+use crate::ground::{bytes_per_point, classify_ground, GroundClass};
+use crate::model::{RecordLayout, Tile};
+
+/// ASPRS class codes written by the ground stage.
+pub mod class {
+    /// Ground.
+    pub const GROUND: u8 = 2;
+    /// Low point (noise).
+    pub const LOW_NOISE: u8 = 7;
+}
+
+/// Ground filtering stage.
+#[derive(Debug, Clone)]
+pub struct GroundStage {
+    section: GroundSection,
+}
+
+impl GroundStage {
+    /// Builds the stage from its configuration section.
+    pub fn new(section: GroundSection) -> Self {
+        GroundStage { section }
+    }
+}
+
+impl Stage for GroundStage {
+    fn name(&self) -> &'static str {
+        "ground"
+    }
+    fn bytes_per_point(&self) -> usize {
+        bytes_per_point()
+    }
+    fn process(
+        &self,
+        tile: &mut Tile,
+        layout: &RecordLayout,
+        report: &mut TileReport,
+    ) -> Result<()> {
+        let classes =
+            classify_ground(&tile.xyz, &self.section.params).map_err(|e| Error::Stage {
+                tile: tile.name.to_string(),
+                stage: "ground",
+                reason: e.to_string(),
+            })?;
+        let keep = self.section.nonground_class < 0;
+        let other = self.section.nonground_class.clamp(0, 255) as u8;
+        if !keep && other > layout.max_classification() {
+            return Err(Error::Config(format!(
+                "ground.nonground_class {other} does not fit point format {} (max {}); set output.point_format to 6 or higher",
+                layout.format.to_u8().unwrap_or(255),
+                layout.max_classification()
+            )));
+        }
+        let (mut n_ground, mut n_low) = (0u64, 0u64);
+        let rl = layout.record_len;
+        for (i, (rec, c)) in tile.records.chunks_exact_mut(rl).zip(&classes).enumerate() {
+            let code = match c {
+                GroundClass::Ground => Some(class::GROUND),
+                GroundClass::LowNoise => Some(class::LOW_NOISE),
+                GroundClass::NonGround => (!keep).then_some(other),
+            };
+            if let Some(code) = code {
+                layout.set_classification(rec, code);
+            }
+            if i < tile.n_core {
+                match c {
+                    GroundClass::Ground => n_ground += 1,
+                    GroundClass::LowNoise => n_low += 1,
+                    GroundClass::NonGround => {}
+                }
+            }
+        }
+        report.stats.insert(
+            "ground".into(),
+            serde_json::json!({ "ground_points": n_ground, "low_noise_points": n_low }),
+        );
+        Ok(())
+    }
+}
