@@ -68,6 +68,13 @@ pub struct GroundParams {
     pub max_distance_m: f64,
     /// Largest angle between the facet plane and the lines from the point to the facet's vertices.
     pub max_angle_deg: f64,
+    /// Largest terrain slope against the horizontal between a candidate and the TIN vertices
+    /// around it (the nearest one and its neighbours); stops the TIN from climbing walls and
+    /// facades. 90 disables. Measured (airborne set): ISPRS mean total 4.32 / 4.04 / 3.95 % at
+    /// 60 / 70 / 80° (4.00 % disabled); on the peers' 1 M synthetic tile, whose walls carry
+    /// 2 pts/m², kappa 94.5 / 92.7 % at 60 / 70° against 58 % disabled (the TIN climbed onto
+    /// every roof). 70° for airborne data, 60° in the mobile set where facades are everywhere.
+    pub max_slope_deg: f64,
     /// Facets whose edges are all shorter than this are not densified any further.
     pub min_edge_m: f64,
     /// Final pass: points up to this height above the final TIN become ground.
@@ -109,6 +116,7 @@ impl Default for GroundParams {
             seed_cell_m: 25.0,
             max_distance_m: 1.5,
             max_angle_deg: 30.0,
+            max_slope_deg: 70.0,
             min_edge_m: 0.5,
             offset_m: 0.3,
             max_iterations: 100,
@@ -156,6 +164,7 @@ impl GroundParams {
             seed_cell_m: 20.0,
             max_distance_m: 0.3,
             max_angle_deg: 10.0,
+            max_slope_deg: 60.0,
             min_edge_m: 0.05,
             offset_m: 0.15,
             mobile_mapping: true,
@@ -200,6 +209,12 @@ impl GroundParams {
             self.max_angle_deg,
             self.max_angle_deg > 0.0 && self.max_angle_deg < 90.0,
             "in (0, 90)",
+        )?;
+        check(
+            "max_slope_deg",
+            self.max_slope_deg,
+            self.max_slope_deg > 0.0 && self.max_slope_deg <= 90.0,
+            "in (0, 90]",
         )?;
         check(
             "min_edge_m",

@@ -35,6 +35,19 @@ impl HasPosition for TinVertex {
 
 type Tin = DelaunayTriangulation<TinVertex>;
 
+/// True if the point at `pos`/`z` is steeper than `max_tan` (rise over horizontal run) to the
+/// TIN vertex nearest to it or to any vertex adjacent to that one.
+fn too_steep(tin: &Tin, pos: Point2<f64>, z: f64, max_tan: f64) -> bool {
+    let Some(nv) = tin.nearest_neighbor(pos) else {
+        return false;
+    };
+    let steep = |v: &TinVertex| {
+        let dh = ((v.pos.x - pos.x).powi(2) + (v.pos.y - pos.y).powi(2)).sqrt();
+        (z - v.z).abs() > max_tan * dh
+    };
+    steep(nv.data()) || nv.out_edges().any(|e| steep(e.to().data()))
+}
+
 /// Per-point state during densification.
 #[derive(Clone, Copy, PartialEq, Eq)]
 enum State {
@@ -289,6 +302,11 @@ pub fn densify_and_classify(
     let mut hint_of: Vec<u32> = vec![NO_FACE; order.len()];
     let mut dirty: Vec<bool> = vec![true; tin.num_all_faces()];
     let sin_max_angle = params.max_angle_deg.to_radians().sin();
+    let max_slope_tan = if params.max_slope_deg < 90.0 {
+        params.max_slope_deg.to_radians().tan()
+    } else {
+        f64::INFINITY
+    };
     let max_dist = params.max_distance_m;
     let min_added = ((params.min_added_fraction * n as f64).ceil() as usize).max(1);
 
@@ -344,6 +362,16 @@ pub fn densify_and_classify(
             // stricter on steep facets.
             let t = facet_test(&verts, p, params.min_edge_m);
             if t.all_edges_short || t.dist >= max_dist || t.max_sin_angle >= sin_max_angle {
+                continue;
+            }
+            // The facet's vertices can be far away (a large facet spanning a building footprint
+            // without ground inside): then wall and facade points pass the facet test, tilt the
+            // facets, and the TIN climbs onto the roof a little every iteration, since each step
+            // is judged against facets the previous steps tilted. Terrain, unlike walls, is
+            // rarely steeper than `max_slope_deg` against the horizontal: the candidate must not
+            // be that steep to the nearest TIN vertex or any of its TIN neighbours (its 1-ring,
+            // which at a wall holds the ground vertices at the wall's foot).
+            if max_slope_tan.is_finite() && too_steep(&tin, pos, p[2], max_slope_tan) {
                 continue;
             }
             if t.dist < strong_dist && t.max_sin_angle < strong_sin {
