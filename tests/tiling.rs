@@ -26,6 +26,9 @@ impl Stage for &'static Recorder {
     fn bytes_per_point(&self) -> usize {
         0
     }
+    fn needs_context(&self) -> bool {
+        true
+    }
     fn process(
         &self,
         tile: &mut Tile,
@@ -193,5 +196,73 @@ fn split_tiles_keep_exact_buffers() {
     // 64 MiB with four workers leaves ~60 k points per tile: the dense blobs must be split.
     for seed in 11..=13 {
         check(seed, 64, 100_000);
+    }
+}
+
+/// Slow stage that fails on the fifth tile it sees.
+struct SlowFailing(std::sync::atomic::AtomicUsize);
+
+impl Stage for SlowFailing {
+    fn name(&self) -> &'static str {
+        "slow_failing"
+    }
+    fn bytes_per_point(&self) -> usize {
+        0
+    }
+    fn process(
+        &self,
+        tile: &mut Tile,
+        _: &RecordLayout,
+        _: &mut TileReport,
+    ) -> tessera::Result<()> {
+        std::thread::sleep(std::time::Duration::from_millis(30));
+        if self.0.fetch_add(1, std::sync::atomic::Ordering::SeqCst) == 4 {
+            return Err(tessera::Error::Stage {
+                tile: tile.name.to_string(),
+                stage: "slow_failing",
+                reason: "injected".into(),
+            });
+        }
+        Ok(())
+    }
+}
+
+#[test]
+fn stage_failure_while_reader_and_tiler_are_blocked_does_not_hang() {
+    // 60 small inputs, one per tile: tiles are released while reading, the slow workers fill
+    // the job queue, the tiler blocks on it and the reader on the chunk queue. A failing stage
+    // must still end the run with its error (it used to leave the reader blocked forever).
+    let dir = tempfile::tempdir().unwrap();
+    let mut rng = Lcg(99);
+    let mut files = Vec::new();
+    for f in 0..60 {
+        let p = dir.path().join(format!("f{f:02}.las"));
+        let (cx, cy) = (
+            1000.0 + 100.0 * (f % 8) as f64,
+            2000.0 + 100.0 * (f / 8) as f64,
+        );
+        write_random(&p, &mut rng, 30_000, cx + 10.0, cy + 10.0, 30.0);
+        files.push(p);
+    }
+    let cfg = Config::load(
+        None,
+        &[
+            "tiling.tile_size_m=100".into(),
+            "tiling.buffer_m=0".into(),
+            "pipeline.memory_budget_mb=64".into(),
+        ],
+    )
+    .unwrap();
+    let (tx, rx) = std::sync::mpsc::channel();
+    let out = dir.path().join("out");
+    std::thread::spawn(move || {
+        let stages: Vec<Box<dyn Stage>> = vec![Box::new(SlowFailing(Default::default()))];
+        let r = tessera::pipeline::run_with_stages(&files, &out, &cfg, &stages, &|_, _| {});
+        let _ = tx.send(r.map(|_| ()).map_err(|e| e.to_string()));
+    });
+    match rx.recv_timeout(std::time::Duration::from_secs(60)) {
+        Ok(Err(e)) => assert!(e.contains("injected"), "{e}"),
+        Ok(Ok(())) => panic!("the injected failure was lost"),
+        Err(_) => panic!("pipeline hung after a stage error"),
     }
 }

@@ -26,7 +26,11 @@ impl BorderLevels {
         grid: &Grid,
         max_x: f64,
         max_y: f64,
+        quantile: f64,
     ) -> Self {
+        if quantile > 0.0 {
+            return Self::quantile(points, frame, grid, max_x, max_y, quantile);
+        }
         // The strip is a fraction of a seed cell: narrow enough to hold the terrain right at
         // the border, wide enough to hold a few points.
         let strip_m = (0.2 * grid.cell_m).min(3.0);
@@ -75,6 +79,56 @@ impl BorderLevels {
             }
         };
         let levels = two_lowest.map(|side| side.into_iter().map(robust_low).collect());
+        BorderLevels { levels }
+    }
+
+    /// Like [`BorderLevels::new`], with the `quantile` of the strip's heights as its level
+    /// (dense scans, where a cluster of low outliers defeats the 2nd lowest point).
+    fn quantile(
+        points: &[[f64; 3]],
+        frame: &Frame,
+        grid: &Grid,
+        max_x: f64,
+        max_y: f64,
+        quantile: f64,
+    ) -> Self {
+        let strip_m = (0.2 * grid.cell_m).min(3.0);
+        let mut zs: [Vec<Vec<f64>>; 4] = [
+            vec![Vec::new(); grid.ny],
+            vec![Vec::new(); grid.ny],
+            vec![Vec::new(); grid.nx],
+            vec![Vec::new(); grid.nx],
+        ];
+        let mut push = |side: usize, cell: usize, z: f64| {
+            if let Some(t) = zs[side].get_mut(cell) {
+                t.push(z);
+            }
+        };
+        for p in points {
+            let l = frame.local(p);
+            let (ix, iy) = grid.cell_xy(p[0], p[1]);
+            if l[0] <= strip_m {
+                push(0, iy, l[2]);
+            }
+            if l[0] >= max_x - strip_m {
+                push(1, iy, l[2]);
+            }
+            if l[1] <= strip_m {
+                push(2, ix, l[2]);
+            }
+            if l[1] >= max_y - strip_m {
+                push(3, ix, l[2]);
+            }
+        }
+        let level = |mut t: Vec<f64>| {
+            if t.is_empty() {
+                return None;
+            }
+            let k = ((t.len() - 1) as f64 * quantile).floor() as usize;
+            let (_, z, _) = t.select_nth_unstable_by(k, f64::total_cmp);
+            Some(*z)
+        };
+        let levels = zs.map(|side| side.into_iter().map(level).collect());
         BorderLevels { levels }
     }
 

@@ -18,6 +18,13 @@
 //! untiled run. Merging `seed_phases`² shifted grids makes the seeds (nearly) independent of
 //! where the cell borders fall; the opposite failure, seeds on roofs, is handled by the
 //! median test of [`select_seeds`] (`seed_roof_m`).
+//!
+//! Dense street-level scans (`densify_cell_m` > 0 and `seed_quantile` > 0) replace the three
+//! guards: low outliers there come as clusters of mirror / multipath points that pass them.
+//! Each `densify_cell_m` cell is represented by its lowest supported point
+//! (`lowest_per_cell`), the seed of a seed cell is the `seed_quantile` of those
+//! representatives, and seeds far below the median of their neighbours are dropped
+//! (`seed_pit_m`, in the roof test).
 
 use super::{GroundError, GroundParams};
 
@@ -139,21 +146,46 @@ pub fn select_seeds(points: &[[f64; 3]], params: &GroundParams) -> Result<Vec<u3
     let cell_m = params.seed_cell_m;
     let k = params.seed_phases.max(1);
     let step_m = cell_m / k as f64;
+    // Dense scans: the seeds are chosen among the lowest points of the `densify_cell_m` cells
+    // (`seed_quantile`), see `seeds_on_grid`.
+    let thinned = if params.densify_cell_m > 0.0 && params.seed_quantile > 0.0 {
+        let (low, _) = lowest_per_cell(
+            points,
+            (0..points.len() as u32).collect(),
+            params.densify_cell_m,
+            params.offset_m,
+        );
+        Some(low)
+    } else {
+        None
+    };
+    let sub: Vec<[f64; 3]> = match &thinned {
+        Some(low) => low.iter().map(|&i| points[i as usize]).collect(),
+        None => Vec::new(),
+    };
+    let pts: &[[f64; 3]] = if thinned.is_some() { &sub } else { points };
     let mut seeds = Vec::new();
     for a in 0..k {
         for b in 0..k {
-            let grid = Grid::with_phase(points, cell_m, [a as f64 * step_m, b as f64 * step_m])?;
-            seeds.extend(seeds_on_grid(points, &grid, params));
+            let grid = Grid::with_phase(pts, cell_m, [a as f64 * step_m, b as f64 * step_m])?;
+            let found = seeds_on_grid(pts, &grid, params);
+            match &thinned {
+                Some(low) => seeds.extend(found.into_iter().map(|s| low[s as usize])),
+                None => seeds.extend(found),
+            }
         }
     }
+    drop(sub);
     seeds.sort_unstable();
     seeds.dedup();
-    if params.seed_roof_m > 0.0 {
+    if params.seed_roof_m > 0.0 || params.seed_pit_m > 0.0 {
+        let off = |v: f64| if v > 0.0 { v } else { f64::INFINITY };
         seeds = roof_filter(
             points,
             &seeds,
             ROOF_RADIUS_CELLS * cell_m,
-            params.seed_roof_m,
+            off(params.seed_roof_m),
+            off(params.seed_pit_m),
         )?;
     }
     Ok(seeds)
@@ -184,6 +216,7 @@ fn roof_filter(
     seeds: &[u32],
     radius_m: f64,
     allowance_m: f64,
+    pit_m: f64,
 ) -> Result<Vec<u32>, GroundError> {
     let sp: Vec<[f64; 3]> = seeds.iter().map(|&s| points[s as usize]).collect();
     // Bucket the seeds by a grid with cells of the search radius: the 3x3 block around a seed
@@ -257,7 +290,23 @@ fn roof_filter(
                 };
                 above(g) > allowance_m
             };
-            if roof {
+            // Pit test (mirror image of the roof test, `seed_pit_m`): a seed standing far below
+            // the median of its neighbours, flat and along the gradient of the neighbours near
+            // the median level, sits on low outliers (multipath / mirror points, shafts).
+            let pit = -flat > pit_m && {
+                let near: Vec<[f64; 3]> = zs
+                    .iter()
+                    .copied()
+                    .filter(|d| (d[2] + flat).abs() <= pit_m)
+                    .collect();
+                let g = if near.len() >= 3 {
+                    gradient(&near)
+                } else {
+                    [0.0, 0.0]
+                };
+                -above(g) > pit_m
+            };
+            if roof || pit {
                 continue;
             }
         }
@@ -326,6 +375,15 @@ fn seeds_on_grid(points: &[[f64; 3]], grid: &Grid, params: &GroundParams) -> Vec
     for c in 0..n_cells {
         let slice = &mut by_cell[start[c] as usize..start[c + 1] as usize];
         if slice.is_empty() {
+            continue;
+        }
+        if params.densify_cell_m > 0.0 && params.seed_quantile > 0.0 {
+            // Quantile of the small-cell minima: low outliers (multipath, mirror points below
+            // the pavement) cover a small fraction of the cells of a dense scan, but often
+            // come in clusters that pass a neighbourhood support test.
+            let q = ((slice.len() - 1) as f64 * params.seed_quantile).floor() as usize;
+            let (_, s, _) = slice.select_nth_unstable_by(q, |a, b| z_of(a).total_cmp(&z_of(b)));
+            seed_of_cell[c] = Some(*s);
             continue;
         }
         let k = slice.len().min(LOWEST_PER_CELL);
@@ -418,9 +476,114 @@ fn seeds_on_grid(points: &[[f64; 3]], grid: &Grid, params: &GroundParams) -> Vec
     seeds
 }
 
+/// Splits `candidates` into one representative low point of every `cell_m` grid cell (aligned
+/// to absolute multiples of `cell_m`, so a tile with its buffer sees the same cells as an
+/// untiled run) and all the others.
+///
+/// The representative is the lowest point of the cell that has at least `support` other points
+/// of the cell no more than `window_m` above it (the lowest point when none has): terrain is a
+/// densely sampled surface, while sparse low noise (multipath, points scattered below the
+/// pavement) is isolated. `support` grows with the cell's point count (1/32 of it, 1..=8), so
+/// sparse cells (far from the scanner) keep their lowest point.
+///
+/// Why: dense street-level scans sample the terrain far more finely than the TIN needs, and
+/// most of their points lie on objects standing on it (bikes, poles, people, facades). A point
+/// that is not the lowest of its small cell cannot be the terrain there unless the cell
+/// straddles a step, so it adds nothing to the densification but noise and chances for the
+/// TIN to climb objects; the final pass still classifies it against the finished TIN.
+pub(super) fn lowest_per_cell(
+    points: &[[f64; 3]],
+    candidates: Vec<u32>,
+    cell_m: f64,
+    window_m: f64,
+) -> (Vec<u32>, Vec<u32>) {
+    let key = |i: u32| {
+        let p = points[i as usize];
+        // Saturating casts: far-off coordinates only merge cells, never fail.
+        (
+            (p[0] / cell_m).floor() as i64,
+            (p[1] / cell_m).floor() as i64,
+        )
+    };
+    let z = |i: u32| points[i as usize][2];
+    let mut sorted = candidates;
+    sorted.sort_unstable_by(|&a, &b| {
+        key(a)
+            .cmp(&key(b))
+            .then(z(a).total_cmp(&z(b)))
+            .then(a.cmp(&b))
+    });
+    let mut lowest = Vec::new();
+    let mut rest = Vec::with_capacity(sorted.len());
+    let mut start = 0;
+    while start < sorted.len() {
+        let k = key(sorted[start]);
+        let mut end = start + 1;
+        while end < sorted.len() && key(sorted[end]) == k {
+            end += 1;
+        }
+        let cell = &sorted[start..end];
+        let support = (cell.len() / 32).clamp(1, 8);
+        let chosen = (0..cell.len())
+            .find(|&j| {
+                cell.get(j + support)
+                    .is_some_and(|&o| z(o) - z(cell[j]) <= window_m)
+            })
+            .unwrap_or(0);
+        for (j, &i) in cell.iter().enumerate() {
+            if j == chosen {
+                lowest.push(i);
+            } else {
+                rest.push(i);
+            }
+        }
+        start = end;
+    }
+    (lowest, rest)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A 0.5 m cell with a dense surface at z = 1 (64 points within 2 cm) and three sparse low
+    /// outliers: the representative is the lowest surface point, the others are deferred.
+    #[test]
+    fn lowest_per_cell_skips_sparse_low_outliers() {
+        let mut points = Vec::new();
+        for i in 0..64 {
+            let (x, y) = (0.05 + 0.05 * (i % 8) as f64, 0.05 + 0.05 * (i / 8) as f64);
+            points.push([x, y, 1.0 + 0.0003 * i as f64]);
+        }
+        points.push([0.2, 0.2, 0.1]);
+        points.push([0.3, 0.1, 0.5]);
+        points.push([0.1, 0.3, 0.7]);
+        // A sparse cell next to it keeps its lowest point.
+        points.push([0.7, 0.1, 3.0]);
+        points.push([0.8, 0.1, 2.0]);
+        let n = points.len() as u32;
+        let (low, rest) = lowest_per_cell(&points, (0..n).collect(), 0.5, 0.15);
+        assert_eq!(low, vec![0, n - 1]);
+        assert_eq!(low.len() + rest.len(), points.len());
+    }
+
+    /// The pit test drops a seed 1 m below flat neighbours and keeps everything else.
+    #[test]
+    fn roof_filter_drops_pit_seed() {
+        let mut points = Vec::new();
+        for iy in 0..11 {
+            for ix in 0..11 {
+                let (x, y) = (5.0 * ix as f64, 5.0 * iy as f64);
+                points.push([x, y, 0.5 + 0.01 * x]);
+            }
+        }
+        let pit = 5 * 11 + 5;
+        points[pit][2] -= 1.0;
+        let seeds: Vec<u32> = (0..points.len() as u32).collect();
+        let kept = roof_filter(&points, &seeds, 30.0, f64::INFINITY, 0.5).expect("small grid");
+        assert!(!kept.contains(&(pit as u32)));
+        assert_eq!(kept.len(), points.len() - 1);
+    }
 
     /// Seeds on a 5 m lattice over 100 m × 100 m on a 30 % slope, one of them 6 m too high.
     #[test]
@@ -435,7 +598,7 @@ mod tests {
         let roof = 10 * 21 + 10;
         points[roof][2] += 6.0;
         let seeds: Vec<u32> = (0..points.len() as u32).collect();
-        let kept = roof_filter(&points, &seeds, 37.5, 3.0).expect("small grid");
+        let kept = roof_filter(&points, &seeds, 37.5, 3.0, f64::INFINITY).expect("small grid");
         assert!(!kept.contains(&(roof as u32)));
         assert_eq!(kept.len(), points.len() - 1, "terrain seeds must all stay");
     }

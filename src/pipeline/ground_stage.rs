@@ -5,7 +5,7 @@
 use super::stage::{Stage, TileReport};
 use crate::config::GroundSection;
 use crate::error::{Error, Result};
-use crate::ground::{bytes_per_point, classify_ground, GroundClass};
+use crate::ground::{classify_ground, GroundClass};
 use crate::model::{RecordLayout, Tile};
 
 /// ASPRS class codes written by the ground stage.
@@ -34,7 +34,7 @@ impl Stage for GroundStage {
         "ground"
     }
     fn bytes_per_point(&self) -> usize {
-        bytes_per_point()
+        self.section.params.bytes_per_point()
     }
     fn process(
         &self,

@@ -152,9 +152,16 @@ fn run_inner(
     writer: &TileWriter,
     progress: ProgressFn,
 ) -> Result<Summary> {
+    // Buffers only cost (spill traffic grows with (tile + 2 buffer)² / tile²): build them only
+    // when some stage reads context.
+    let buffer_m = if stages.iter().any(|s| s.needs_context()) {
+        cfg.tiling.buffer_m
+    } else {
+        0.0
+    };
     let grid = Grid {
         tile_size_m: cfg.tiling.tile_size_m,
-        buffer_m: cfg.tiling.buffer_m,
+        buffer_m,
     };
     let order = schedule(&set.files, &grid);
     let failure = Failure {
@@ -252,6 +259,9 @@ fn run_inner(
             if let Err(e) = r {
                 failure.set(e);
             }
+            // Dropping both ends here (not at the end of the scope) is what lets a blocked
+            // reader see a closed channel when the tiler stops early.
+            drop(chunk_rx);
             drop(job_tx);
             *ttile.lock().unwrap_or_else(|p| p.into_inner()) = t.elapsed().as_secs_f64();
         });
@@ -325,6 +335,7 @@ fn run_inner(
     {
         return Err(e);
     }
+    summary.buffer_m = buffer_m;
     summary.tiles = summary.tile_list.len();
     summary.tiles_split = summary.split_tiles.len();
     summary.max_open_tiles = max_open.load(Ordering::Relaxed) as usize;

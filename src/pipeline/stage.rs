@@ -24,6 +24,11 @@ pub trait Stage: Send + Sync {
     /// Working memory the stage needs per tile point, bytes (an honest upper estimate: it
     /// sizes tiles against the memory budget).
     fn bytes_per_point(&self) -> usize;
+    /// Whether the stage reads the buffer points around the core (context). When no stage
+    /// does, the pipeline does not build buffers at all.
+    fn needs_context(&self) -> bool {
+        true
+    }
     /// Processes one tile.
     fn process(
         &self,
@@ -43,6 +48,9 @@ impl Stage for StatsStage {
     }
     fn bytes_per_point(&self) -> usize {
         0
+    }
+    fn needs_context(&self) -> bool {
+        false
     }
     fn process(
         &self,

@@ -50,6 +50,8 @@ pub struct Summary {
     pub peak_rss_mb: f64,
     /// Configured memory budget, MiB.
     pub memory_budget_mb: u64,
+    /// Overlap buffer used, metres (0 when no stage reads context).
+    pub buffer_m: f64,
     /// Most tiles open in the tiler at once.
     pub max_open_tiles: usize,
     /// The resolved budget plan.
