@@ -158,6 +158,9 @@ pub fn generate_slab(params: &SceneParams, x0: f64, x1: f64, out: &mut Vec<Synth
     for k in k0..k1 {
         world.fill(k, &mut cell);
         em.rng = Rng(hash(p.seed, R_CELL, k));
+        // The sensor rides on the road, which climbs with the grade: without this the density
+        // fell along long drives (a 4 km drive had 39 M instead of ~100 M points).
+        em.h = p.sensor_height_m + layout::GRADE * (k as f64 + 0.5);
         let (xa, xb) = (k as f64, k as f64 + 1.0);
         ground(&mut em, &cell, p.seed, xa, xb);
         facades(&mut em, &cell, xa, xb);

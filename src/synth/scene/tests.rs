@@ -178,3 +178,20 @@ fn colours_are_8_bit_times_257_and_bad_input_yields_nothing() {
     generate_slab(&bad, 0.0, 10.0, &mut v);
     assert!(v.is_empty());
 }
+
+#[test]
+fn density_does_not_drift_along_a_long_drive() {
+    // The road climbs with the grade; the sensor must climb with it, or the scan density
+    // falls along the drive.
+    let p = SceneParams {
+        length_m: 5000.0,
+        ..SceneParams::default()
+    };
+    let count = |x0: f64| {
+        let mut v = Vec::new();
+        generate_slab(&p, x0, x0 + 20.0, &mut v);
+        v.len() as f64
+    };
+    let (near, far) = (count(100.0), count(4500.0));
+    assert!((far / near - 1.0).abs() < 0.2, "near {near}, far {far}");
+}
