@@ -18,7 +18,7 @@ fn twenty_million_points_stay_under_256_mib() {
     let out = d.path().join("out");
     let exe = env!("CARGO_BIN_EXE_tessera");
     let st = Command::new(exe)
-        .args(["-q", "synth", "--length-m", "850", "--seed", "3", "--out"])
+        .args(["-q", "synth", "--length-m", "1000", "--seed", "3", "--out"])
         .arg(&scene)
         .status()
         .unwrap();

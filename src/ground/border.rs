@@ -53,22 +53,7 @@ impl BorderLevels {
                 keep_two(t, z);
             }
         };
-        for p in points {
-            let l = frame.local(p);
-            let (ix, iy) = grid.cell_xy(p[0], p[1]);
-            if l[0] <= strip_m {
-                push(0, iy, l[2]);
-            }
-            if l[0] >= max_x - strip_m {
-                push(1, iy, l[2]);
-            }
-            if l[1] <= strip_m {
-                push(2, ix, l[2]);
-            }
-            if l[1] >= max_y - strip_m {
-                push(3, ix, l[2]);
-            }
-        }
+        for_each_in_strips(points, frame, grid, (max_x, max_y), strip_m, &mut push);
         let robust_low = |t: [f64; 2]| {
             if t[1].is_finite() {
                 Some(t[1])
@@ -104,22 +89,7 @@ impl BorderLevels {
                 t.push(z);
             }
         };
-        for p in points {
-            let l = frame.local(p);
-            let (ix, iy) = grid.cell_xy(p[0], p[1]);
-            if l[0] <= strip_m {
-                push(0, iy, l[2]);
-            }
-            if l[0] >= max_x - strip_m {
-                push(1, iy, l[2]);
-            }
-            if l[1] <= strip_m {
-                push(2, ix, l[2]);
-            }
-            if l[1] >= max_y - strip_m {
-                push(3, ix, l[2]);
-            }
-        }
+        for_each_in_strips(points, frame, grid, (max_x, max_y), strip_m, &mut push);
         let level = |mut t: Vec<f64>| {
             if t.is_empty() {
                 return None;
@@ -140,5 +110,34 @@ impl BorderLevels {
             Side::North => 3,
         };
         self.levels[i].get(cell).copied().flatten()
+    }
+}
+
+/// Calls `push(side, cell, local z)` for every point within `strip_m` of a side of the local
+/// bounding box `[0, max_x] × [0, max_y]` (sides: 0 west, 1 east — by grid row; 2 south,
+/// 3 north — by grid column).
+fn for_each_in_strips(
+    points: &[[f64; 3]],
+    frame: &Frame,
+    grid: &Grid,
+    (max_x, max_y): (f64, f64),
+    strip_m: f64,
+    push: &mut impl FnMut(usize, usize, f64),
+) {
+    for p in points {
+        let l = frame.local(p);
+        let (ix, iy) = grid.cell_xy(p[0], p[1]);
+        if l[0] <= strip_m {
+            push(0, iy, l[2]);
+        }
+        if l[0] >= max_x - strip_m {
+            push(1, iy, l[2]);
+        }
+        if l[1] <= strip_m {
+            push(2, ix, l[2]);
+        }
+        if l[1] >= max_y - strip_m {
+            push(3, ix, l[2]);
+        }
     }
 }

@@ -3,7 +3,7 @@
 //! points in fixed-size chunks into reused buffers.
 
 use crate::error::{Error, Result};
-use crate::model::{point_id, RecordLayout, Rect};
+use crate::model::{RecordLayout, Rect};
 use las::point::Format;
 use las::{PointData, PointDataBuilder, Reader, Vector};
 use std::fs::File;
@@ -415,7 +415,6 @@ pub fn read_file_chunks(
         emit(done, records)?;
         done += got;
     }
-    debug_assert!(point_id(file.index, done.saturating_sub(1)) >> 40 == file.index as u64);
     Ok(done)
 }
 

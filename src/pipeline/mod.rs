@@ -49,6 +49,17 @@ struct Processed {
     split_root: Option<String>,
 }
 
+/// Everything the pipeline threads share for one run.
+struct RunCtx<'a> {
+    set: &'a InputSet,
+    out_dir: &'a Path,
+    spill_dir: &'a Path,
+    cfg: &'a Config,
+    plan: &'a BudgetPlan,
+    stages: &'a [Box<dyn Stage>],
+    writer: &'a TileWriter,
+}
+
 /// Shared failure state: the first error wins; everyone else stops quietly.
 struct Failure {
     first: Mutex<Option<Error>>,
@@ -114,9 +125,16 @@ pub fn run_with_stages(
     let _ = std::fs::remove_dir_all(&spill_dir);
     std::fs::create_dir_all(&spill_dir).map_err(|e| Error::io(&spill_dir, e))?;
     let writer = TileWriter::new(&set.template, &set.layout, cfg.output.format == "laz")?;
-    let res = run_inner(
-        &set, out_dir, &spill_dir, cfg, &plan, stages, &writer, progress,
-    );
+    let ctx = RunCtx {
+        set: &set,
+        out_dir,
+        spill_dir: &spill_dir,
+        cfg,
+        plan: &plan,
+        stages,
+        writer: &writer,
+    };
+    let res = run_inner(&ctx, progress);
     let _ = std::fs::remove_dir_all(&spill_dir);
     let mut summary = res?;
     summary.seconds.insert("scan".into(), scan_s);
@@ -141,17 +159,15 @@ pub fn run_with_stages(
     Ok(summary)
 }
 
-#[allow(clippy::too_many_arguments)]
-fn run_inner(
-    set: &InputSet,
-    out_dir: &Path,
-    spill_dir: &Path,
-    cfg: &Config,
-    plan: &BudgetPlan,
-    stages: &[Box<dyn Stage>],
-    writer: &TileWriter,
-    progress: ProgressFn,
-) -> Result<Summary> {
+fn run_inner(ctx: &RunCtx, progress: ProgressFn) -> Result<Summary> {
+    let RunCtx {
+        set,
+        spill_dir,
+        cfg,
+        plan,
+        stages,
+        ..
+    } = *ctx;
     // Buffers only cost (spill traffic grows with (tile + 2 buffer)² / tile²): build them only
     // when some stage reads context.
     let buffer_m = if stages.iter().any(|s| s.needs_context()) {
@@ -275,9 +291,7 @@ fn run_inner(
                     if failure.failed() {
                         break;
                     }
-                    if let Err(e) = work(
-                        job, set, out_dir, spill_dir, cfg, plan, stages, writer, &res_tx,
-                    ) {
+                    if let Err(e) = work(job, ctx, &res_tx) {
                         failure.set(e);
                         break;
                     }
@@ -356,18 +370,16 @@ fn run_inner(
 
 /// Processes one job: splits it while it is too big for the budget, then loads and runs the
 /// stages on each resulting tile and compresses its core points to a temporary file.
-#[allow(clippy::too_many_arguments)]
-fn work(
-    job: TileJob,
-    set: &InputSet,
-    out_dir: &Path,
-    spill_dir: &Path,
-    cfg: &Config,
-    plan: &BudgetPlan,
-    stages: &[Box<dyn Stage>],
-    writer: &TileWriter,
-    res_tx: &Sender<Processed>,
-) -> Result<()> {
+fn work(job: TileJob, ctx: &RunCtx, res_tx: &Sender<Processed>) -> Result<()> {
+    let RunCtx {
+        set,
+        out_dir,
+        spill_dir,
+        cfg,
+        plan,
+        stages,
+        writer,
+    } = *ctx;
     let root = job.name.to_string();
     let mut todo = vec![job];
     let mut was_split = false;
