@@ -12,7 +12,7 @@ PEERS=$(readlink -f "${PEERS:-../shared/peers}")
 W=${BENCH_DIR:-/tmp/tessera-bench-ground}
 rm -rf "$W"; mkdir -p "$W"
 cargo build --release -q
-BIN=$(readlink -f target/release/tessera)
+BIN=$(readlink -f "${CARGO_TARGET_DIR:-target}/release/tessera")
 python3 "$PEERS/make_synth.py" "$W/ref.las" --n 1000000 --tool-input "$W/in.las" > /dev/null
 HAVE_PCL=0; command -v pcl_progressive_morphological_filter > /dev/null && HAVE_PCL=1
 [ $HAVE_PCL = 1 ] && python3 "$PEERS/pcdio.py" las2pcd "$W/in.las" "$W/all.pcd" > /dev/null

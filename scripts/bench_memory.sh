@@ -10,7 +10,7 @@ BUDGET=${1:-256}; SIZES=${2:-"5 20 100"}
 STAGES=${STAGES:-'["stats"]'}
 W=${BENCH_DIR:-/tmp/tessera-bench-mem}
 cargo build --release -q
-BIN=target/release/tessera
+BIN="${CARGO_TARGET_DIR:-target}/release/tessera"
 mkdir -p "$W"
 printf "%-10s %-12s %-10s %-10s %-8s %-8s\n" "M points" "points" "wall s" "RSS MiB" "tiles" "split"
 for m in $SIZES; do

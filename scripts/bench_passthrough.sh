@@ -10,7 +10,7 @@ PEERS=${PEERS:-../shared/peers}
 W=${BENCH_DIR:-/tmp/tessera-bench-pt}
 rm -rf "$W"; mkdir -p "$W"
 cargo build --release -q
-BIN=target/release/tessera
+BIN="${CARGO_TARGET_DIR:-target}/release/tessera"
 $BIN -q synth --out "$W/scene" --length-m "$LEN" --file-length-m "$LEN"
 python3 - "$W" <<'PY'
 import sys, laspy

@@ -10,7 +10,7 @@ DATA=${TESSERA_DATA:-../shared/data}
 ISPRS="$DATA/isprs-filtertest"
 W=$(mktemp -d); trap 'rm -rf "$W"' EXIT
 cargo build --release -q
-BIN=target/release/tessera
+BIN="${CARGO_TARGET_DIR:-target}/release/tessera"
 
 if [ ! -d "$ISPRS" ]; then echo "SKIP: $ISPRS not found"; exit 0; fi
 echo "== ISPRS filter test: each sample filtered alone, config/airborne.toml (one parameter set)"
