@@ -56,37 +56,46 @@ pub(super) fn facet_test(v: &[[f64; 3]; 3], p: [f64; 3], min_edge_m: f64) -> Fac
     }
 }
 
-/// Least-squares plane z = a + b x + c y through `pts`, evaluated at (x, y); also returns the
-/// z range of `pts`. `None` with fewer than 3 points or a degenerate (collinear) layout.
-pub(super) fn plane_at(pts: &[[f64; 3]], x: f64, y: f64) -> Option<(f64, f64, f64)> {
+/// Least-squares plane through `pts` as (centroid, dz/dx, dz/dy); `None` with fewer than 3
+/// points or a degenerate (collinear) layout.
+pub(super) fn plane_fit(pts: &[[f64; 3]]) -> Option<([f64; 3], f64, f64)> {
     if pts.len() < 3 {
         return None;
     }
     let n = pts.len() as f64;
-    let (mx, my) = (
-        pts.iter().map(|p| p[0]).sum::<f64>() / n,
-        pts.iter().map(|p| p[1]).sum::<f64>() / n,
-    );
-    let mz = pts.iter().map(|p| p[2]).sum::<f64>() / n;
-    let (mut sxx, mut sxy, mut syy, mut sxz, mut syz) = (0.0, 0.0, 0.0, 0.0, 0.0);
-    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    let mut m = [0.0; 3];
     for p in pts {
-        let (dx, dy, dz) = (p[0] - mx, p[1] - my, p[2] - mz);
+        for k in 0..3 {
+            m[k] += p[k] / n;
+        }
+    }
+    let (mut sxx, mut sxy, mut syy, mut sxz, mut syz) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    for p in pts {
+        let (dx, dy, dz) = (p[0] - m[0], p[1] - m[1], p[2] - m[2]);
         sxx += dx * dx;
         sxy += dx * dy;
         syy += dy * dy;
         sxz += dx * dz;
         syz += dy * dz;
-        lo = lo.min(p[2]);
-        hi = hi.max(p[2]);
     }
     let det = sxx * syy - sxy * sxy;
     if det.abs() <= 1e-9 * (sxx * syy).max(1e-12) {
         return None;
     }
-    let b = (sxz * syy - syz * sxy) / det;
-    let c = (syz * sxx - sxz * sxy) / det;
-    Some((mz + b * (x - mx) + c * (y - my), lo, hi))
+    Some((
+        m,
+        (sxz * syy - syz * sxy) / det,
+        (syz * sxx - sxz * sxy) / det,
+    ))
+}
+
+/// Least-squares plane through `pts` evaluated at (x, y); also returns the z range of `pts`.
+/// `None` with fewer than 3 points or a degenerate (collinear) layout.
+pub(super) fn plane_at(pts: &[[f64; 3]], x: f64, y: f64) -> Option<(f64, f64, f64)> {
+    let (m, b, c) = plane_fit(pts)?;
+    let lo = pts.iter().map(|p| p[2]).fold(f64::INFINITY, f64::min);
+    let hi = pts.iter().map(|p| p[2]).fold(f64::NEG_INFINITY, f64::max);
+    Some((m[2] + b * (x - m[0]) + c * (y - m[1]), lo, hi))
 }
 
 /// Interleaves the low 20 bits of `x` and `y` (Morton / Z-order key).

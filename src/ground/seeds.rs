@@ -318,28 +318,7 @@ fn roof_filter(
 /// Least-squares gradient (dz/dx, dz/dy) of a plane through offsets (dx, dy, dz); zero when
 /// the offsets are (nearly) collinear.
 fn gradient(d: &[[f64; 3]]) -> [f64; 2] {
-    let n = d.len() as f64;
-    let (mut sx, mut sy, mut sz) = (0.0, 0.0, 0.0);
-    for p in d {
-        sx += p[0];
-        sy += p[1];
-        sz += p[2];
-    }
-    let (mx, my, mz) = (sx / n, sy / n, sz / n);
-    let (mut sxx, mut sxy, mut syy, mut sxz, mut syz) = (0.0, 0.0, 0.0, 0.0, 0.0);
-    for p in d {
-        let (x, y, z) = (p[0] - mx, p[1] - my, p[2] - mz);
-        sxx += x * x;
-        sxy += x * y;
-        syy += y * y;
-        sxz += x * z;
-        syz += y * z;
-    }
-    let det = sxx * syy - sxy * sxy;
-    if det <= 1e-9 * (sxx * syy).max(1e-12) {
-        return [0.0, 0.0];
-    }
-    [(syy * sxz - sxy * syz) / det, (sxx * syz - sxy * sxz) / det]
+    super::geometry::plane_fit(d).map_or([0.0, 0.0], |(_, b, c)| [b, c])
 }
 
 /// Seeds of one grid: the lowest trustworthy point of every cell (at most one per cell).
