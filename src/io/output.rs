@@ -63,11 +63,6 @@ impl TileWriter {
         })
     }
 
-    /// File extension of the tiles ("laz" or "las").
-    pub fn extension(&self) -> &'static str {
-        self.extension
-    }
-
     /// Writes `records` (raw, in the run layout) to a temporary sibling of `dir/name.<ext>`;
     /// [`PendingTile::commit`] then renames it into place. Splitting the two lets workers
     /// compress tiles in parallel while one thread decides what becomes visible.
@@ -79,11 +74,6 @@ impl TileWriter {
             return Err(e);
         }
         Ok(PendingTile { tmp, path })
-    }
-
-    /// Writes `records` to `dir/name.<ext>` atomically and returns the final path.
-    pub fn write(&self, dir: &Path, name: &str, records: Vec<u8>) -> Result<PathBuf> {
-        self.prepare(dir, name, records)?.commit()
     }
 
     // No fsync: rename after a complete write already guarantees readers never see a partial
@@ -118,10 +108,6 @@ pub struct PendingTile {
 }
 
 impl PendingTile {
-    /// Final path the tile gets on commit.
-    pub fn path(&self) -> &Path {
-        &self.path
-    }
     /// Renames the tile into place.
     pub fn commit(self) -> Result<PathBuf> {
         std::fs::rename(&self.tmp, &self.path).map_err(|e| Error::io(&self.path, e))?;

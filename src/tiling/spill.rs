@@ -128,11 +128,6 @@ impl SpillSet {
         Ok(())
     }
 
-    /// Bytes currently buffered in memory.
-    pub fn buffered_bytes(&self) -> usize {
-        self.buffered
-    }
-
     fn flush_slot(&mut self, slot: usize) -> Result<()> {
         let s = &mut self.slots[slot];
         let Some(id) = s.id else { return Ok(()) };
