@@ -9,6 +9,8 @@ pub(super) struct FacetTest {
     pub(super) max_sin_angle: f64,
     /// Whether all three (xy) edges are shorter than `min_edge_m`.
     pub(super) all_edges_short: bool,
+    /// Tangent of the facet's slope against the horizontal (infinite for a vertical facet).
+    pub(super) slope_tan: f64,
 }
 
 /// Vertical offset of `p` above the plane through `v` (negative: below).
@@ -20,6 +22,14 @@ pub(super) fn height_above(v: &[[f64; 3]; 3], p: [f64; 3]) -> f64 {
     }
     let d = n[0] * (p[0] - v[0][0]) + n[1] * (p[1] - v[0][1]) + n[2] * (p[2] - v[0][2]);
     d / n[2]
+}
+
+/// Whether `p` lies in the xy triangle `v` (boundary included), either orientation.
+pub(super) fn in_triangle(v: &[[f64; 3]; 3], p: [f64; 3]) -> bool {
+    let side =
+        |a: &[f64; 3], b: &[f64; 3]| (b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0]);
+    let (s0, s1, s2) = (side(&v[0], &v[1]), side(&v[1], &v[2]), side(&v[2], &v[0]));
+    (s0 >= 0.0 && s1 >= 0.0 && s2 >= 0.0) || (s0 <= 0.0 && s1 <= 0.0 && s2 <= 0.0)
 }
 
 pub(super) fn normal(v: &[[f64; 3]; 3]) -> [f64; 3] {
@@ -53,6 +63,11 @@ pub(super) fn facet_test(v: &[[f64; 3]; 3], p: [f64; 3], min_edge_m: f64) -> Fac
         dist,
         max_sin_angle,
         all_edges_short: short(&v[0], &v[1]) && short(&v[1], &v[2]) && short(&v[2], &v[0]),
+        slope_tan: if n[2] != 0.0 {
+            (n[0] * n[0] + n[1] * n[1]).sqrt() / n[2].abs()
+        } else {
+            f64::INFINITY
+        },
     }
 }
 
@@ -160,6 +175,19 @@ mod tests {
         assert!(lo <= hi);
         let line = [[0.0, 0.0, 0.0], [1.0, 1.0, 1.0], [2.0, 2.0, 2.0]];
         assert!(plane_at(&line, 0.0, 1.0).is_none());
+    }
+
+    #[test]
+    fn in_triangle_includes_boundary_and_both_orientations() {
+        let ccw = [[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.0, 2.0, 0.0]];
+        let cw = [ccw[0], ccw[2], ccw[1]];
+        for v in [ccw, cw] {
+            assert!(in_triangle(&v, [0.5, 0.5, 9.0]));
+            assert!(in_triangle(&v, [1.0, 1.0, 0.0])); // on the hypotenuse
+            assert!(in_triangle(&v, [0.0, 0.0, 0.0])); // a vertex
+            assert!(!in_triangle(&v, [1.5, 1.5, 0.0]));
+            assert!(!in_triangle(&v, [-0.1, 0.5, 0.0]));
+        }
     }
 
     #[test]

@@ -149,7 +149,7 @@ impl Default for GroundParams {
             bulk_accept_fraction: 0.5,
             seed_phases: 3,
             seed_roof_m: 2.5,
-            densify_cell_m: 0.0,
+            densify_cell_m: 0.5,
             seed_quantile: 0.0,
             seed_pit_m: 0.0,
             tin_pit_m: 0.0,
@@ -423,8 +423,18 @@ pub fn classify_ground(
     if points.len() < 3 {
         return Ok(vec![GroundClass::Ground; points.len()]);
     }
-    let seeds = seeds::select_seeds(points, params)?;
-    tin::densify_and_classify(points, &seeds, params)
+    // Dense scans: one representative low point per `densify_cell_m` cell takes part in seed
+    // selection and densification; the other points are judged by the final pass.
+    let thinned = (params.densify_cell_m > 0.0).then(|| {
+        seeds::lowest_per_cell(
+            points,
+            (0..points.len() as u32).collect(),
+            params.densify_cell_m,
+            params.offset_m,
+        )
+    });
+    let seeds = seeds::select_seeds(points, thinned.as_ref().map(|t| t.0.as_slice()), params)?;
+    tin::densify_and_classify(points, &seeds, thinned, params)
 }
 
 /// Working memory of [`classify_ground`] per input point in bytes, excluding the input slice

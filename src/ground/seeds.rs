@@ -26,6 +26,8 @@
 //! representatives, and seeds far below the median of their neighbours are dropped
 //! (`seed_pit_m`, in the roof test).
 
+use rayon::prelude::*;
+
 use super::{GroundError, GroundParams};
 
 /// How many of the lowest points of a cell are examined for outliers.
@@ -142,38 +144,38 @@ pub const ROOF_RADIUS_CELLS: f64 = 1.5;
 /// holds, but which points become seeds no longer hinges on one arbitrary phase. This is a
 /// sampled moving-window minimum (a morphological erosion with a `seed_cell_m` window).
 /// The denser seeds then pass a robust roof test (`roof_filter`, `seed_roof_m`).
-pub fn select_seeds(points: &[[f64; 3]], params: &GroundParams) -> Result<Vec<u32>, GroundError> {
+pub fn select_seeds(
+    points: &[[f64; 3]],
+    thinned: Option<&[u32]>,
+    params: &GroundParams,
+) -> Result<Vec<u32>, GroundError> {
     let cell_m = params.seed_cell_m;
     let k = params.seed_phases.max(1);
     let step_m = cell_m / k as f64;
-    // Dense scans: the seeds are chosen among the lowest points of the `densify_cell_m` cells
-    // (`seed_quantile`), see `seeds_on_grid`.
-    let thinned = if params.densify_cell_m > 0.0 && params.seed_quantile > 0.0 {
-        let (low, _) = lowest_per_cell(
-            points,
-            (0..points.len() as u32).collect(),
-            params.densify_cell_m,
-            params.offset_m,
-        );
-        Some(low)
-    } else {
-        None
-    };
-    let sub: Vec<[f64; 3]> = match &thinned {
+    // Dense scans (`densify_cell_m`): the seeds are chosen among the representatives of the
+    // small cells (`thinned`, see `lowest_per_cell`): the lowest trustworthy point of a seed
+    // cell is always one of them, and the seed grids then cost a fraction of the points.
+    let sub: Vec<[f64; 3]> = match thinned {
         Some(low) => low.iter().map(|&i| points[i as usize]).collect(),
         None => Vec::new(),
     };
     let pts: &[[f64; 3]] = if thinned.is_some() { &sub } else { points };
-    let mut seeds = Vec::new();
-    for a in 0..k {
-        for b in 0..k {
+    // The phase grids are independent: built in parallel, merged in phase order.
+    let per_phase: Vec<Result<Vec<u32>, GroundError>> = (0..k * k)
+        .into_par_iter()
+        .map(|ab| {
+            let (a, b) = (ab / k, ab % k);
             let grid = Grid::with_phase(pts, cell_m, [a as f64 * step_m, b as f64 * step_m])?;
             let found = seeds_on_grid(pts, &grid, params);
-            match &thinned {
-                Some(low) => seeds.extend(found.into_iter().map(|s| low[s as usize])),
-                None => seeds.extend(found),
-            }
-        }
+            Ok(match thinned {
+                Some(low) => found.into_iter().map(|s| low[s as usize]).collect(),
+                None => found,
+            })
+        })
+        .collect();
+    let mut seeds = Vec::new();
+    for found in per_phase {
+        seeds.extend(found?);
     }
     drop(sub);
     seeds.sort_unstable();
@@ -476,29 +478,30 @@ pub(super) fn lowest_per_cell(
     cell_m: f64,
     window_m: f64,
 ) -> (Vec<u32>, Vec<u32>) {
-    let key = |i: u32| {
-        let p = points[i as usize];
-        // Saturating casts: far-off coordinates only merge cells, never fail.
-        (
-            (p[0] / cell_m).floor() as i64,
-            (p[1] / cell_m).floor() as i64,
-        )
-    };
+    // Sort by (cell, z, index) on precomputed integer keys: computing the cell (two `floor`s)
+    // inside the comparator made this sort a fifth of the ground stage's time.
+    let mut keyed: Vec<(u64, u64, u32)> = candidates
+        .iter()
+        .map(|&i| {
+            let p = points[i as usize];
+            // Saturating casts: far-off coordinates only merge cells, never fail.
+            let kx = (p[0] / cell_m).floor() as i32 as u32;
+            let ky = (p[1] / cell_m).floor() as i32 as u32;
+            ((u64::from(kx) << 32) | u64::from(ky), ordered_bits(p[2]), i)
+        })
+        .collect();
+    drop(candidates);
+    keyed.sort_unstable();
     let z = |i: u32| points[i as usize][2];
-    let mut sorted = candidates;
-    sorted.sort_unstable_by(|&a, &b| {
-        key(a)
-            .cmp(&key(b))
-            .then(z(a).total_cmp(&z(b)))
-            .then(a.cmp(&b))
-    });
+    let cell_keys: Vec<u64> = keyed.iter().map(|k| k.0).collect();
+    let sorted: Vec<u32> = keyed.into_iter().map(|k| k.2).collect();
     let mut lowest = Vec::new();
     let mut rest = Vec::with_capacity(sorted.len());
     let mut start = 0;
     while start < sorted.len() {
-        let k = key(sorted[start]);
+        let k = cell_keys[start];
         let mut end = start + 1;
-        while end < sorted.len() && key(sorted[end]) == k {
+        while end < sorted.len() && cell_keys[end] == k {
             end += 1;
         }
         let cell = &sorted[start..end];
@@ -519,6 +522,16 @@ pub(super) fn lowest_per_cell(
         start = end;
     }
     (lowest, rest)
+}
+
+/// `f64` bits whose unsigned order is the numeric (total) order of the values.
+fn ordered_bits(v: f64) -> u64 {
+    let b = v.to_bits();
+    if b >> 63 == 1 {
+        !b
+    } else {
+        b | (1 << 63)
+    }
 }
 
 #[cfg(test)]
