@@ -82,6 +82,23 @@ pub enum Command {
         /// Length of the drive written to each output file, metres.
         #[arg(long, default_value_t = 50.0)]
         file_length_m: f64,
+        /// Which scene: a street drive, or a row of coloured houses (segmentation gate).
+        #[arg(long, value_enum, default_value_t = SceneKind::Street)]
+        scene: SceneKind,
+        /// Number of houses (buildings scene).
+        #[arg(long, default_value_t = 4)]
+        houses: usize,
+    },
+    /// Density reduction by minimum point spacing (Sapkota §5.3), streaming: a point is kept
+    /// unless a kept point lies within the spacing.
+    Thin {
+        /// Minimum distance between kept points, metres.
+        #[arg(long)]
+        spacing: f64,
+        /// Input LAS/LAZ file.
+        input: PathBuf,
+        /// Output LAS/LAZ file (LAZ if the name ends in .laz).
+        output: PathBuf,
     },
     /// Synthesise a small street scene and run the pipeline on it.
     Demo {
@@ -108,6 +125,15 @@ pub enum Command {
     },
 }
 
+/// Synthetic scenes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum SceneKind {
+    /// Street drive with road, kerbs, facades, trees, poles and cars.
+    Street,
+    /// Row of gabled houses with dormers, framed windows, doors and a shadow.
+    Buildings,
+}
+
 /// Evaluations.
 #[derive(Debug, Subcommand)]
 pub enum EvalCommand {
@@ -130,6 +156,44 @@ pub enum EvalCommand {
         match_precision_m: f64,
         /// Score only reference points found in the result (e.g. ISPRS samples inside a
         /// filtered site file); otherwise a missing point is an error.
+        #[arg(long)]
+        allow_unmatched: bool,
+        /// Print JSON instead of a table.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Segmentation: Hoover / Sapkota (§5.2) correct, over-, under-segmentation, missed and
+    /// noise at tolerances 0.51–0.99, and the RMSE of angles between matched planes.
+    Segments {
+        /// Reference LAS/LAZ file or directory.
+        #[arg(long)]
+        reference: PathBuf,
+        /// Result LAS/LAZ file or directory of tiles.
+        #[arg(long)]
+        result: PathBuf,
+        /// Reference attribute with segment ids (extra-bytes name or a standard field).
+        #[arg(long, default_value = "gt_segment")]
+        ref_field: String,
+        /// Result attribute with segment ids.
+        #[arg(long, default_value = "segment_id")]
+        res_field: String,
+        /// Score only reference points whose FIELD is one of the values, e.g. gt_class=6.
+        #[arg(long, value_name = "FIELD=V1,V2")]
+        restrict: Option<String>,
+        /// Result ids are global (stitched): do not make them unique per file.
+        #[arg(long)]
+        global_ids: bool,
+        /// Tolerances (comma-separated, each in (0.5, 1]).
+        #[arg(
+            long,
+            value_delimiter = ',',
+            default_value = "0.51,0.6,0.7,0.8,0.9,0.99"
+        )]
+        tolerance: Vec<f64>,
+        /// Coordinate precision for matching points, metres.
+        #[arg(long, default_value_t = 0.001)]
+        match_precision_m: f64,
+        /// Score only reference points found in the result.
         #[arg(long)]
         allow_unmatched: bool,
         /// Print JSON instead of a table.

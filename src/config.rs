@@ -75,6 +75,8 @@ pub struct Config {
     pub stages: StagesParams,
     /// `[ground]`
     pub ground: GroundSection,
+    /// `[segment]`
+    pub segment: crate::pipeline::segment_stage::SegmentSection,
 }
 
 impl Config {

@@ -13,8 +13,10 @@ pub mod io;
 pub mod model;
 pub mod pipeline;
 pub mod report;
+pub mod segment;
 pub mod synth;
 pub mod sys;
+pub mod thin;
 pub mod tiling;
 
 pub use config::Config;

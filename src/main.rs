@@ -5,7 +5,7 @@ use anyhow::Context;
 use clap::Parser;
 use std::io::IsTerminal;
 use std::process::ExitCode;
-use tessera::cli::{Cli, Command, EvalCommand};
+use tessera::cli::{Cli, Command, EvalCommand, SceneKind};
 use tessera::{Config, Error};
 
 fn main() -> ExitCode {
@@ -131,7 +131,26 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             length_m,
             points_per_m2,
             file_length_m,
+            scene,
+            houses,
         } => {
+            if scene == SceneKind::Buildings {
+                let mut p = tessera::synth::buildings::BuildingParams {
+                    seed,
+                    houses,
+                    ..Default::default()
+                };
+                if let Some(d) = points_per_m2 {
+                    p.points_per_m2 = d;
+                }
+                let s = tessera::synth::write_buildings(&p, &out)?;
+                tracing::info!(
+                    "wrote {} points ({houses} houses) to {}",
+                    s.points,
+                    out.display()
+                );
+                return Ok(());
+            }
             let mut p = tessera::synth::SceneParams {
                 seed,
                 length_m,
@@ -167,7 +186,70 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             tracing::info!("demo scene: {} points in {} files", s.points, s.files);
             process(&[scene_dir], &out.join("tiles"), &cfg, cli.quiet)
         }
+        Command::Thin {
+            spacing,
+            input,
+            output,
+        } => {
+            let s = tessera::thin::thin_file(&input, &output, spacing)?;
+            tracing::info!(
+                "kept {} of {} points ({:.1} %) at spacing {spacing} m: {}",
+                s.kept,
+                s.seen,
+                100.0 * s.kept as f64 / s.seen.max(1) as f64,
+                output.display()
+            );
+            Ok(())
+        }
         Command::Eval { what } => match what {
+            EvalCommand::Segments {
+                reference,
+                result,
+                ref_field,
+                res_field,
+                restrict,
+                global_ids,
+                tolerance,
+                match_precision_m,
+                allow_unmatched,
+                json,
+            } => {
+                let restrict = match restrict {
+                    None => None,
+                    Some(r) => {
+                        let (f, v) = r.split_once('=').ok_or_else(|| {
+                            Error::Config(format!("--restrict {r}: expected FIELD=V1,V2,..."))
+                        })?;
+                        let vals = v
+                            .split(',')
+                            .map(|x| x.trim().parse::<u32>())
+                            .collect::<std::result::Result<Vec<_>, _>>()
+                            .map_err(|e| Error::Config(format!("--restrict {r}: {e}")))?;
+                        Some((f.to_string(), vals))
+                    }
+                };
+                let o = tessera::eval::SegEvalOptions {
+                    ref_field,
+                    res_field,
+                    restrict,
+                    ids_per_file: !global_ids,
+                    precision_m: match_precision_m,
+                    allow_unmatched,
+                    tolerances: tolerance,
+                };
+                let e = tessera::eval::eval_segments(&reference, &result, &o)?;
+                if json {
+                    println!(
+                        "{}",
+                        serde_json::to_string(&e).map_err(|e| Error::Internal(e.to_string()))?
+                    );
+                } else {
+                    println!("reference: {}", reference.display());
+                    println!("result:    {}", result.display());
+                    print!("{}", e.table());
+                }
+                Ok(())
+            }
             EvalCommand::Ground {
                 reference,
                 result,

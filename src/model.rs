@@ -219,6 +219,19 @@ pub struct Tile {
     pub xyz: Vec<[f64; 3]>,
     /// Number of core points (the first `n_core` records).
     pub n_core: usize,
+    /// Segment id per record (0 = none) when a segmentation stage ran, else empty.
+    pub segments: Vec<u32>,
+    /// Segments with core points, when a segmentation stage ran.
+    pub segment_table: Vec<SegmentRow>,
+}
+
+/// One row of a tile's segment table.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SegmentRow {
+    /// The segment (id, plane, colour, all its points in core + buffer).
+    pub info: crate::segment::SegmentInfo,
+    /// How many of its points are core points of the tile.
+    pub core_points: usize,
 }
 
 impl Tile {

@@ -2,6 +2,7 @@
 //! between a reference and a result (by order when they line up, else by coordinates).
 
 pub mod ground;
+pub mod segments;
 
 use crate::error::{Error, Result};
 use crate::io::input::expand_paths;
@@ -93,4 +94,201 @@ pub fn eval_ground(
     }
     let n = want.len();
     Ok((ground::score_ground(&want, &got), n))
+}
+
+/// Points of one or more LAS/LAZ files with named per-point attributes.
+#[derive(Debug, Default)]
+pub struct FieldPoints {
+    /// Coordinates rounded to the matching precision.
+    pub keys: Vec<[i64; 3]>,
+    /// Coordinates.
+    pub xyz: Vec<[f64; 3]>,
+    /// Index of the file each point came from (in the sorted file list).
+    pub file: Vec<u32>,
+    /// One column per requested field.
+    pub values: Vec<Vec<u32>>,
+}
+
+/// Where a named attribute lives in a point record.
+#[derive(Clone, Copy, Debug)]
+enum FieldSource {
+    Classification,
+    UserData,
+    PointSourceId,
+    Intensity,
+    /// An extra-bytes attribute: byte offset, size and data type.
+    Extra(usize, usize, u8),
+}
+
+fn field_source(path: &Path, header: &las::Header, name: &str) -> Result<FieldSource> {
+    match name {
+        "classification" => return Ok(FieldSource::Classification),
+        "user_data" => return Ok(FieldSource::UserData),
+        "point_source_id" => return Ok(FieldSource::PointSourceId),
+        "intensity" => return Ok(FieldSource::Intensity),
+        _ => {}
+    }
+    let extra = header
+        .all_vlrs()
+        .find(|v| {
+            v.user_id == crate::io::extra::USER_ID && v.record_id == crate::io::extra::RECORD_ID
+        })
+        .map(|v| crate::io::extra::fields(&v.data))
+        .unwrap_or_default();
+    match extra.iter().find(|f| f.name == name) {
+        Some(f) if (1..=10).contains(&f.data_type) => {
+            Ok(FieldSource::Extra(f.offset, f.size, f.data_type))
+        }
+        Some(f) => Err(Error::Config(format!(
+            "{}: extra-bytes attribute '{name}' has data type {}, not a scalar",
+            path.display(),
+            f.data_type
+        ))),
+        None => Err(Error::Config(format!(
+            "{}: no attribute '{name}' (standard: classification, user_data, point_source_id, intensity; extra bytes: {})",
+            path.display(),
+            if extra.is_empty() {
+                "none".to_string()
+            } else {
+                extra.iter().map(|f| f.name.as_str()).collect::<Vec<_>>().join(", ")
+            }
+        ))),
+    }
+}
+
+fn field_value(path: &Path, p: &las::Point, src: FieldSource) -> Result<u32> {
+    Ok(match src {
+        FieldSource::Classification => u32::from(u8::from(p.classification)),
+        FieldSource::UserData => u32::from(p.user_data),
+        FieldSource::PointSourceId => u32::from(p.point_source_id),
+        FieldSource::Intensity => u32::from(p.intensity),
+        FieldSource::Extra(off, size, ty) => {
+            let b = p.extra_bytes.get(off..off + size).ok_or_else(|| {
+                Error::Config(format!(
+                    "{}: point record shorter than its extra bytes",
+                    path.display()
+                ))
+            })?;
+            let mut raw = [0u8; 8];
+            raw[..size].copy_from_slice(b);
+            let v = match ty {
+                9 => f32::from_le_bytes([raw[0], raw[1], raw[2], raw[3]]).round() as f64,
+                10 => f64::from_le_bytes(raw).round(),
+                // Signed types: sign-extend from `size` bytes.
+                2 | 4 | 6 | 8 => {
+                    let shift = 64 - 8 * size as u32;
+                    ((i64::from_le_bytes(raw) << shift) >> shift) as f64
+                }
+                _ => u64::from_le_bytes(raw) as f64,
+            };
+            if !(0.0..=u32::MAX as f64).contains(&v) {
+                return Err(Error::Config(format!(
+                    "{}: attribute value {v} is not a segment id (0..2^32)",
+                    path.display()
+                )));
+            }
+            v as u32
+        }
+    })
+}
+
+/// Reads every point of `path` (a file or a directory of tiles) with the attributes `fields`.
+pub fn load_fields(path: &Path, precision_m: f64, fields: &[&str]) -> Result<FieldPoints> {
+    let files: Vec<PathBuf> = expand_paths(&[path.to_path_buf()])?;
+    let mut out = FieldPoints {
+        values: vec![Vec::new(); fields.len()],
+        ..Default::default()
+    };
+    for (fi, f) in files.iter().enumerate() {
+        let mut r = las::Reader::from_path(f).map_err(|e| Error::las(f, e))?;
+        let src: Vec<FieldSource> = fields
+            .iter()
+            .map(|n| field_source(f, r.header(), n))
+            .collect::<Result<_>>()?;
+        let mut pd = las::PointDataBuilder::new().for_header(r.header()).build();
+        while r
+            .fill_points(1 << 20, &mut pd)
+            .map_err(|e| Error::las(f, e))?
+            > 0
+        {
+            for p in pd.points() {
+                let p = p.map_err(|e| Error::las(f, e))?;
+                out.keys.push([
+                    (p.x / precision_m).round() as i64,
+                    (p.y / precision_m).round() as i64,
+                    (p.z / precision_m).round() as i64,
+                ]);
+                out.xyz.push([p.x, p.y, p.z]);
+                out.file.push(fi as u32);
+                for (col, s) in out.values.iter_mut().zip(&src) {
+                    col.push(field_value(f, &p, *s)?);
+                }
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// Options of [`eval_segments`].
+#[derive(Clone, Debug)]
+pub struct SegEvalOptions {
+    /// Reference attribute holding segment ids (0 = none).
+    pub ref_field: String,
+    /// Result attribute holding segment ids (0 = none).
+    pub res_field: String,
+    /// Score only reference points whose attribute `.0` is one of `.1` (e.g. `gt_class` = 6).
+    pub restrict: Option<(String, Vec<u32>)>,
+    /// Result ids are local to each file (tiles segmented independently): make them unique
+    /// per file before scoring.
+    pub ids_per_file: bool,
+    /// Coordinate precision for matching points, metres.
+    pub precision_m: f64,
+    /// Score only reference points found in the result.
+    pub allow_unmatched: bool,
+    /// Tolerances (each in (0.5, 1]).
+    pub tolerances: Vec<f64>,
+}
+
+/// Scores a segmentation against reference segments (Hoover et al. / Sapkota §5.2, see
+/// [`segments`]). Points are matched as in [`match_points`].
+pub fn eval_segments(
+    reference: &Path,
+    result: &Path,
+    o: &SegEvalOptions,
+) -> Result<segments::SegEval> {
+    let mut ref_fields = vec![o.ref_field.as_str()];
+    if let Some((f, _)) = &o.restrict {
+        ref_fields.push(f);
+    }
+    let r = load_fields(reference, o.precision_m, &ref_fields)?;
+    let s = load_fields(result, o.precision_m, &[o.res_field.as_str()])?;
+    let key = |keys: &Vec<[i64; 3]>| LabelledPoints {
+        keys: keys.clone(),
+        classes: Vec::new(),
+    };
+    let m = match_points(&key(&r.keys), &key(&s.keys), o.allow_unmatched)?;
+    let mut ids: HashMap<(u32, u32), u32> = HashMap::new();
+    let (mut want, mut got, mut xyz) = (Vec::new(), Vec::new(), Vec::new());
+    for (k, i) in m.iter().enumerate() {
+        let Some(i) = *i else { continue };
+        if let Some((_, keep)) = &o.restrict {
+            if !keep.contains(&r.values[1][k]) {
+                continue;
+            }
+        }
+        let raw = s.values[0][i];
+        let id = if raw == 0 {
+            0
+        } else if o.ids_per_file {
+            let next = ids.len() as u32 + 1;
+            *ids.entry((s.file[i], raw)).or_insert(next)
+        } else {
+            raw
+        };
+        want.push(r.values[0][k]);
+        got.push(id);
+        xyz.push(r.xyz[k]);
+    }
+    segments::try_evaluate(&want, &got, Some(&xyz), &o.tolerances)
+        .map_err(|e| Error::Config(format!("segment evaluation: {e}")))
 }

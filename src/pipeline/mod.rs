@@ -11,11 +11,13 @@
 
 pub mod budget;
 pub mod ground_stage;
+pub mod segment_stage;
 pub mod stage;
 
 use crate::config::Config;
 use crate::error::{Error, Result};
 use crate::io::input::read_file_chunks;
+use crate::io::output::{segment_table_tsv, TileSegments};
 use crate::io::{scan_inputs, write_atomic, InputSet, PendingTile, TileWriter};
 use crate::report::{peak_rss_mb, Summary, TileSummary};
 use crate::tiling::{load_tile, schedule, split_job, Grid, TileJob, Tiler};
@@ -124,7 +126,13 @@ pub fn run_with_stages(
     // A previous crashed run may have left spill files; they are never valid for a new run.
     let _ = std::fs::remove_dir_all(&spill_dir);
     std::fs::create_dir_all(&spill_dir).map_err(|e| Error::io(&spill_dir, e))?;
-    let writer = TileWriter::new(&set.template, &set.layout, cfg.output.format == "laz")?;
+    let segments = stages.iter().any(|s| s.name() == "segment");
+    let writer = TileWriter::new(
+        &set.template,
+        &set.layout,
+        cfg.output.format == "laz",
+        segments,
+    )?;
     let ctx = RunCtx {
         set: &set,
         out_dir,
@@ -411,10 +419,17 @@ fn work(job: TileJob, ctx: &RunCtx, res_tx: &Sender<Processed>) -> Result<()> {
         let n_core = tile.n_core;
         let buffer_points = (tile.len() - n_core) as u64;
         let mut records = std::mem::take(&mut tile.records);
-        drop(tile);
         records.truncate(n_core * set.layout.record_len);
         let t = Instant::now();
-        let pending = writer.prepare(out_dir, &name, records)?;
+        let table = writer
+            .writes_segments()
+            .then(|| segment_table_tsv(&tile.segment_table));
+        let seg = table.as_deref().map(|table| TileSegments {
+            ids: tile.segments.get(..n_core).unwrap_or(&[]),
+            table,
+        });
+        let pending = writer.prepare(out_dir, &name, records, seg)?;
+        drop(tile);
         report
             .seconds
             .insert("compress".into(), t.elapsed().as_secs_f64());

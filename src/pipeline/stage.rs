@@ -99,8 +99,11 @@ pub fn build_stages(cfg: &crate::config::Config) -> Result<Vec<Box<dyn Stage>>> 
                 Box::new(super::ground_stage::GroundStage::new(cfg.ground.clone()))
                     as Box<dyn Stage>,
             ),
+            "segment" => Ok(Box::new(super::segment_stage::SegmentStage::new(
+                cfg.segment.clone(),
+            )?) as Box<dyn Stage>),
             other => Err(crate::error::Error::Config(format!(
-                "stages.run: unknown stage \"{other}\" (known: ground, stats)"
+                "stages.run: unknown stage \"{other}\" (known: ground, segment, stats)"
             ))),
         })
         .collect()

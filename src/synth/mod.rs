@@ -5,6 +5,7 @@
 //! The scene is generated slab by slab (one output file per slab, in parallel), so scenes of
 //! 10^8+ points are written with memory bounded by a few slabs.
 
+pub mod buildings;
 pub mod scene;
 
 pub use scene::{generate_slab, segments, SceneParams, SegmentTruth, SynthPoint};
@@ -30,20 +31,10 @@ pub struct SynthStats {
     pub files: usize,
 }
 
-/// Extra-bytes descriptor (LAS 1.4 R15 §2.16: 192 bytes per attribute).
-fn extra_bytes_descriptor(data_type: u8, name: &str, description: &str) -> Vec<u8> {
-    let mut d = vec![0u8; 192];
-    d[2] = data_type;
-    d[4..4 + name.len().min(32)].copy_from_slice(&name.as_bytes()[..name.len().min(32)]);
-    let desc = &description.as_bytes()[..description.len().min(32)];
-    d[160..160 + desc.len()].copy_from_slice(desc);
-    d
-}
-
 /// The Extra Bytes VLR describing the truth attributes.
 pub fn truth_vlr() -> Vlr {
-    let mut data = extra_bytes_descriptor(1, "gt_class", "ground-truth class code");
-    data.extend(extra_bytes_descriptor(
+    let mut data = crate::io::extra::descriptor(1, "gt_class", "ground-truth class code");
+    data.extend(crate::io::extra::descriptor(
         5,
         "gt_segment",
         "ground-truth segment id",
@@ -122,26 +113,39 @@ pub fn write_scene(params: &SceneParams, dir: &Path, file_length_m: f64) -> Resu
             let x1 = ((i + 1) as f64 * step).min(params.length_m.ceil());
             let mut pts = Vec::new();
             generate_slab(params, x0, x1, &mut pts);
-            let path = dir.join(format!("scene_{i:05}.laz"));
-            let tmp = tmp_path(&path);
-            let res = (|| -> las::Result<()> {
-                let f = std::fs::File::create(&tmp)?;
-                let mut w = Writer::new(BufWriter::with_capacity(1 << 20, f), header.clone())?;
-                for p in &pts {
-                    w.write_point(to_point(p))?;
-                }
-                w.close()
-            })();
-            if let Err(e) = res {
-                let _ = std::fs::remove_file(&tmp);
-                return Err(Error::las(&path, e));
-            }
-            std::fs::rename(&tmp, &path).map_err(|e| Error::io(&path, e))?;
+            write_points(&dir.join(format!("scene_{i:05}.laz")), &header, &pts)?;
             Ok(pts.len() as u64)
         })
         .collect::<Result<_>>()?;
+    write_segments_tsv(dir, &segments(params))?;
+    Ok(SynthStats {
+        points: counts.iter().sum(),
+        files: n,
+    })
+}
+
+/// Writes `pts` to `path` (LAZ, atomically: temp file, then rename).
+fn write_points(path: &Path, header: &las::Header, pts: &[SynthPoint]) -> Result<()> {
+    let tmp = tmp_path(path);
+    let res = (|| -> las::Result<()> {
+        let f = std::fs::File::create(&tmp)?;
+        let mut w = Writer::new(BufWriter::with_capacity(1 << 20, f), header.clone())?;
+        for p in pts {
+            w.write_point(to_point(p))?;
+        }
+        w.close()
+    })();
+    if let Err(e) = res {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(Error::las(path, e));
+    }
+    std::fs::rename(&tmp, path).map_err(|e| Error::io(path, e))
+}
+
+/// Writes the reference segments as `segments.tsv` (world coordinates).
+fn write_segments_tsv(dir: &Path, segs: &[SegmentTruth]) -> Result<()> {
     let mut tsv = String::from("id\tclass\tkind\tplanar\tnx\tny\tnz\td\tx_min\tx_max\n");
-    for s in segments(params) {
+    for s in segs {
         // Plane n·p + d = 0 in local coordinates → world: d' = d − n·offset.
         let d = s.d
             - (s.normal[0] * WORLD_OFFSET[0]
@@ -161,9 +165,23 @@ pub fn write_scene(params: &SceneParams, dir: &Path, file_length_m: f64) -> Resu
             s.x_max + WORLD_OFFSET[0]
         ));
     }
-    write_atomic(&dir.join("segments.tsv"), tsv.as_bytes())?;
+    write_atomic(&dir.join("segments.tsv"), tsv.as_bytes())
+}
+
+/// Writes the building scene (see [`buildings`]) as `buildings.laz` plus `segments.tsv`.
+pub fn write_buildings(params: &buildings::BuildingParams, dir: &Path) -> Result<SynthStats> {
+    if !(params.points_per_m2 > 0.0 && params.points_per_m2.is_finite()) || params.houses == 0 {
+        return Err(Error::Config(format!(
+            "synth buildings: need houses >= 1 and a positive density, got {} houses at {} points/m²",
+            params.houses, params.points_per_m2
+        )));
+    }
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    let (pts, segs) = buildings::generate(params);
+    write_points(&dir.join("buildings.laz"), &header()?, &pts)?;
+    write_segments_tsv(dir, &segs)?;
     Ok(SynthStats {
-        points: counts.iter().sum(),
-        files: n,
+        points: pts.len() as u64,
+        files: 1,
     })
 }

@@ -35,6 +35,8 @@ pub fn load_tile(job: &TileJob, layout: &RecordLayout) -> Result<Tile> {
         ids,
         xyz,
         n_core: job.n_core as usize,
+        segments: Vec::new(),
+        segment_table: Vec::new(),
     })
 }
 

@@ -1,6 +1,8 @@
 //! Shared helpers for the integration tests.
 #![allow(dead_code)]
 
+pub mod house;
+
 use std::path::{Path, PathBuf};
 
 /// The shared data directory (`TESSERA_DATA`, default `../shared/data`), if present.

@@ -1,0 +1,102 @@
+//! LAS 1.4 extra-bytes attributes (R15 §2.16): 192-byte descriptors in the `LASF_Spec` /
+//! record 4 VLR, laid out one after the other at the end of each point record.
+
+/// `user_id` of the VLR holding the descriptors.
+pub const USER_ID: &str = "LASF_Spec";
+/// `record_id` of the VLR holding the descriptors.
+pub const RECORD_ID: u16 = 4;
+/// Descriptor size in bytes.
+pub const DESCRIPTOR_LEN: usize = 192;
+/// Data type code of an unsigned 32-bit attribute.
+pub const TYPE_U32: u8 = 5;
+
+/// One attribute described by an extra-bytes VLR.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ExtraField {
+    /// Attribute name.
+    pub name: String,
+    /// Data type code (0 = opaque bytes, 1..=10 scalars, 11..=30 deprecated arrays).
+    pub data_type: u8,
+    /// Byte offset from the start of the extra bytes of a record.
+    pub offset: usize,
+    /// Size in bytes.
+    pub size: usize,
+}
+
+/// A descriptor for a scalar attribute of `data_type` (1..=10).
+pub fn descriptor(data_type: u8, name: &str, description: &str) -> Vec<u8> {
+    let mut d = vec![0u8; DESCRIPTOR_LEN];
+    d[2] = data_type;
+    let name = &name.as_bytes()[..name.len().min(32)];
+    d[4..4 + name.len()].copy_from_slice(name);
+    let desc = &description.as_bytes()[..description.len().min(32)];
+    d[160..160 + desc.len()].copy_from_slice(desc);
+    d
+}
+
+/// Size in bytes of a data type; type 0 takes its size from the `options` byte.
+fn type_size(data_type: u8, options: u8) -> usize {
+    let scalar = |t: u8| match t {
+        1 | 2 => 1,
+        3 | 4 => 2,
+        5 | 6 | 9 => 4,
+        7 | 8 | 10 => 8,
+        _ => 0,
+    };
+    match data_type {
+        0 => usize::from(options),
+        1..=10 => scalar(data_type),
+        11..=20 => 2 * scalar(data_type - 10),
+        21..=30 => 3 * scalar(data_type - 20),
+        _ => 0,
+    }
+}
+
+/// The attributes described by an extra-bytes VLR's data, with their offsets.
+pub fn fields(vlr_data: &[u8]) -> Vec<ExtraField> {
+    let mut offset = 0;
+    vlr_data
+        .chunks_exact(DESCRIPTOR_LEN)
+        .map(|d| {
+            let name_bytes = &d[4..36];
+            let end = name_bytes.iter().position(|&b| b == 0).unwrap_or(32);
+            let f = ExtraField {
+                name: String::from_utf8_lossy(&name_bytes[..end]).into_owned(),
+                data_type: d[2],
+                offset,
+                size: type_size(d[2], d[3]),
+            };
+            offset += f.size;
+            f
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn offsets_follow_the_descriptor_sizes() {
+        let mut data = descriptor(1, "gt_class", "");
+        data.extend(descriptor(TYPE_U32, "gt_segment", ""));
+        let mut opaque = descriptor(0, "blob", "");
+        opaque[3] = 3;
+        data.extend(opaque);
+        data.extend(descriptor(10, "height", "metres"));
+        let f = fields(&data);
+        let got: Vec<(&str, usize, usize)> = f
+            .iter()
+            .map(|f| (f.name.as_str(), f.offset, f.size))
+            .collect();
+        assert_eq!(
+            got,
+            vec![
+                ("gt_class", 0, 1),
+                ("gt_segment", 1, 4),
+                ("blob", 5, 3),
+                ("height", 8, 8)
+            ]
+        );
+    }
+}
