@@ -110,7 +110,10 @@ pub fn run_with_stages(
     } else {
         cfg.pipeline.threads
     };
-    let stage_bpp: usize = stages.iter().map(|s| s.bytes_per_point()).sum();
+    // Stages run one after the other on a tile and free their working memory before the next
+    // starts, so the largest one counts, plus 8 B a point for results carried between stages
+    // (segment labels).
+    let stage_bpp: usize = stages.iter().map(|s| s.bytes_per_point()).max().unwrap_or(0) + 8;
     let plan = BudgetPlan::new(
         cfg.pipeline.memory_budget_mb,
         set.layout.record_len,

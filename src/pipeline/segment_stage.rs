@@ -30,8 +30,19 @@ pub enum SegmentPoints {
 pub struct SegmentSection {
     /// Which points are segmented.
     pub points: SegmentPoints,
+    /// Only points within this distance outside the tile's core are segmented (capped by the
+    /// tile's own buffer). The tiling buffer is sized for the ground filter's seed cells
+    /// (20 m by default), far more context than region growing needs; segmenting all of it
+    /// cost 8× the time on 12.5 m quadtree tiles. This strip is also the overlap in which
+    /// neighbouring tiles' segments are compared when they are stitched.
+    #[serde(default = "default_seg_buffer")]
+    pub buffer_m: f64,
     /// Region-growing parameters.
     pub params: SegParams,
+}
+
+fn default_seg_buffer() -> f64 {
+    5.0
 }
 
 /// Segmentation stage.
@@ -47,6 +58,12 @@ impl SegmentStage {
             .params
             .validate()
             .map_err(|e| Error::Config(format!("segment.params: {e}")))?;
+        if !(section.buffer_m.is_finite() && section.buffer_m >= 0.0) {
+            return Err(Error::Config(format!(
+                "segment.buffer_m must be >= 0, got {}",
+                section.buffer_m
+            )));
+        }
         Ok(SegmentStage { section })
     }
 }
@@ -86,17 +103,20 @@ impl Stage for SegmentStage {
         report: &mut TileReport,
     ) -> Result<()> {
         let rl = layout.record_len;
+        let zone = tile.core.expanded(self.section.buffer_m.min(tile.buffer_m));
         let mask: Vec<bool> = tile
             .records
             .chunks_exact(rl)
-            .map(|rec| {
+            .zip(&tile.xyz)
+            .map(|(rec, p)| {
                 let c = layout.classification(rec);
                 let noise = c == 7 || c == 18;
-                match self.section.points {
+                let wanted = match self.section.points {
                     SegmentPoints::Nonground => c != 2 && !noise,
                     SegmentPoints::Ground => c == 2,
                     SegmentPoints::All => !noise,
-                }
+                };
+                wanted && zone.contains(p[0], p[1])
             })
             .collect();
         let rgb: Option<Vec<[u16; 3]>> = rgb_offset(layout).map(|o| {

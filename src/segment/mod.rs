@@ -192,10 +192,13 @@ impl SegParams {
     /// Mobile mapping (not in the thesis): the Vlaardingen TLS values — radii 0.15 / 0.20 m
     /// (Table 4-3), distances 0.08 / 0.08 m (Table 4-4), colour 8 / 8 / 20 (Table 4-5) —
     /// because street-level mobile scans have TLS-like spacing and noise near the vehicle.
+    /// The vector median filter is off: it erodes colour features thinner than about half
+    /// its window (window frames; measured on the synthetic buildings, see config).
     pub fn mobile() -> Self {
         SegParams {
             r_seed_m: 0.15,
             r_grow_m: 0.20,
+            vector_median: false,
             ..SegParams::tls()
         }
     }

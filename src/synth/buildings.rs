@@ -43,6 +43,10 @@ impl Default for BuildingParams {
 const FRAME_M: f64 = 0.12;
 /// Gap between houses and lawn margin (m).
 const GAP_M: f64 = 5.0;
+/// Local position of the lawn's south-west corner. Keeps a row of up to four houses inside one
+/// 100 m tile of the synthetic world grid (borders at multiples of 100 m from the world
+/// offset), so the segmentation gate measures segmentation, not cross-tile stitching.
+const SITE_ORIGIN: [f64; 3] = [10.0, 40.0, 0.0];
 
 /// splitmix64 — small, fast and good enough for scene randomness.
 struct Rng(u64);
@@ -241,6 +245,16 @@ pub fn generate(params: &BuildingParams) -> (Vec<SynthPoint>, Vec<SegmentTruth>)
             (!inside).then_some((lawn, GRASS))
         },
     );
+    let t = SITE_ORIGIN;
+    for p in &mut g.pts {
+        (p.x, p.y, p.z) = (p.x + t[0], p.y + t[1], p.z + t[2]);
+    }
+    for s in &mut g.truth {
+        let n = s.normal;
+        s.d -= n[0] * t[0] + n[1] * t[1] + n[2] * t[2];
+        s.x_min += t[0];
+        s.x_max += t[0];
+    }
     (g.pts, g.truth)
 }
 
