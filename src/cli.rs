@@ -100,6 +100,35 @@ pub enum Command {
         /// Output LAS/LAZ file (LAZ if the name ends in .laz).
         output: PathBuf,
     },
+    /// Summarise training samples for the labelling stage (mean and σ of L*, a*, b* per sample)
+    /// into a JSON file for `label.samples`.
+    Samples {
+        /// A LAS/LAZ of classified points (one sample per class and block), or a GeoJSON of
+        /// polygons with a `class` property selecting points of `--input` (one per polygon).
+        #[arg(long)]
+        from: PathBuf,
+        /// Point files the polygons select from (GeoJSON only).
+        #[arg(long)]
+        input: Vec<PathBuf>,
+        /// Attribute holding the class codes of a LAS/LAZ source.
+        #[arg(long, default_value = "classification")]
+        field: String,
+        /// Only points of these classes enter polygon samples (default: ground, 2).
+        #[arg(long, value_delimiter = ',', default_value = "2")]
+        point_classes: Vec<u8>,
+        /// Sample classes kept from a LAS/LAZ source (default: every class but 0, 1, 2, 7, 18).
+        #[arg(long, value_delimiter = ',')]
+        classes: Vec<u8>,
+        /// Block size splitting a LAS/LAZ source into samples, metres.
+        #[arg(long, default_value_t = 5.0)]
+        block_m: f64,
+        /// Fewer coloured points than this: not a sample.
+        #[arg(long, default_value_t = 30)]
+        min_points: u64,
+        /// Output JSON.
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Synthesise a small street scene and run the pipeline on it.
     Demo {
         /// Output directory (default: ./tessera-demo).
@@ -156,6 +185,40 @@ pub enum EvalCommand {
         match_precision_m: f64,
         /// Score only reference points found in the result (e.g. ISPRS samples inside a
         /// filtered site file); otherwise a missing point is an error.
+        #[arg(long)]
+        allow_unmatched: bool,
+        /// Print JSON instead of a table.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Labels: confusion matrix, omission and commission errors, mapping accuracy, F1
+    /// (street-level document Tables 13–16).
+    Labels {
+        /// Reference LAS/LAZ file or directory.
+        #[arg(long)]
+        reference: PathBuf,
+        /// Result LAS/LAZ file or directory of tiles.
+        #[arg(long)]
+        result: PathBuf,
+        /// Reference attribute with class codes (classification or an extra-bytes name).
+        #[arg(long, default_value = "classification")]
+        ref_field: String,
+        /// Result attribute with class codes.
+        #[arg(long, default_value = "classification")]
+        res_field: String,
+        /// Scored reference classes (comma-separated; default: all present).
+        #[arg(long, value_delimiter = ',')]
+        classes: Vec<u8>,
+        /// Map result codes onto one code before scoring, e.g. 2=11,64,65,66,67 (repeatable).
+        #[arg(long = "map", value_name = "TO=FROM,...")]
+        map: Vec<String>,
+        /// Score only reference points with x0 <= x < x1 (e.g. away from training samples).
+        #[arg(long, value_name = "X0,X1")]
+        x_range: Option<String>,
+        /// Coordinate precision for matching points, metres.
+        #[arg(long, default_value_t = 0.001)]
+        match_precision_m: f64,
+        /// Score only reference points found in the result.
         #[arg(long)]
         allow_unmatched: bool,
         /// Print JSON instead of a table.

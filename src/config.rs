@@ -77,6 +77,9 @@ pub struct Config {
     pub ground: GroundSection,
     /// `[segment]`
     pub segment: crate::pipeline::segment_stage::SegmentSection,
+    /// `[label]`
+    #[serde(default)]
+    pub label: crate::pipeline::label_stage::LabelSection,
 }
 
 impl Config {

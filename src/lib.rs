@@ -10,6 +10,7 @@ pub mod error;
 pub mod eval;
 pub mod ground;
 pub mod io;
+pub mod label;
 pub mod model;
 pub mod pipeline;
 pub mod report;

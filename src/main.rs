@@ -186,6 +186,49 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             tracing::info!("demo scene: {} points in {} files", s.points, s.files);
             process(&[scene_dir], &out.join("tiles"), &cfg, cli.quiet)
         }
+        Command::Samples {
+            from,
+            input,
+            field,
+            classes,
+            point_classes,
+            block_m,
+            min_points,
+            out,
+        } => {
+            use tessera::label::samples;
+            let is_json = from.extension().and_then(|e| e.to_str()).is_some_and(|e| {
+                e.eq_ignore_ascii_case("geojson") || e.eq_ignore_ascii_case("json")
+            });
+            let set = if is_json {
+                if input.is_empty() {
+                    return Err(Error::Config(
+                        "samples from polygons need the point files (--input)".into(),
+                    )
+                    .into());
+                }
+                let polys = samples::read_polygons(&from)?;
+                let inputs = tessera::io::input::expand_paths(&input)?;
+                samples::from_polygons(&polys, &inputs, &point_classes, min_points)?
+            } else {
+                let mut set = samples::from_classified_points(&from, &field, block_m, min_points)?;
+                if !classes.is_empty() {
+                    set.samples.retain(|s| classes.contains(&s.class));
+                }
+                set
+            };
+            set.save(&out)?;
+            let mut per: std::collections::BTreeMap<u8, usize> = Default::default();
+            for s in &set.samples {
+                *per.entry(s.class).or_default() += 1;
+            }
+            tracing::info!(
+                "{} samples (per class: {per:?}) written to {}",
+                set.samples.len(),
+                out.display()
+            );
+            Ok(())
+        }
         Command::Thin {
             spacing,
             input,
@@ -202,6 +245,74 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             Ok(())
         }
         Command::Eval { what } => match what {
+            EvalCommand::Labels {
+                reference,
+                result,
+                ref_field,
+                res_field,
+                classes,
+                map,
+                x_range,
+                match_precision_m,
+                allow_unmatched,
+                json,
+            } => {
+                let map = map
+                    .iter()
+                    .map(|m| {
+                        let bad = |e: String| Error::Config(format!("--map {m}: {e}"));
+                        let (to, from) = m
+                            .split_once('=')
+                            .ok_or_else(|| bad("expected TO=FROM,...".into()))?;
+                        let to = to.trim().parse::<u8>().map_err(|e| bad(e.to_string()))?;
+                        let from = from
+                            .split(',')
+                            .map(|x| x.trim().parse::<u8>())
+                            .collect::<std::result::Result<Vec<_>, _>>()
+                            .map_err(|e| bad(e.to_string()))?;
+                        Ok((to, from))
+                    })
+                    .collect::<tessera::Result<Vec<_>>>()?;
+                let o = tessera::eval::LabelEvalOptions {
+                    ref_field,
+                    res_field,
+                    classes,
+                    map,
+                    precision_m: match_precision_m,
+                    allow_unmatched,
+                    x_range: match x_range {
+                        None => None,
+                        Some(r) => {
+                            let v: Vec<f64> = r
+                                .split(',')
+                                .map(|x| x.trim().parse::<f64>())
+                                .collect::<std::result::Result<_, _>>()
+                                .map_err(|e| Error::Config(format!("--x-range {r}: {e}")))?;
+                            match v[..] {
+                                [a, b] if a < b => Some((a, b)),
+                                _ => {
+                                    return Err(Error::Config(format!(
+                                        "--x-range {r}: expected X0,X1 with X0 < X1"
+                                    ))
+                                    .into())
+                                }
+                            }
+                        }
+                    },
+                };
+                let e = tessera::eval::eval_labels(&reference, &result, &o)?;
+                if json {
+                    println!(
+                        "{}",
+                        serde_json::to_string(&e).map_err(|e| Error::Internal(e.to_string()))?
+                    );
+                } else {
+                    println!("reference: {}", reference.display());
+                    println!("result:    {}", result.display());
+                    print!("{}", e.table());
+                }
+                Ok(())
+            }
             EvalCommand::Segments {
                 reference,
                 result,

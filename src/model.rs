@@ -179,6 +179,16 @@ impl RecordLayout {
         }
     }
 
+    /// (return number, number of returns) of a record.
+    #[inline]
+    pub fn returns(&self, rec: &[u8]) -> (u8, u8) {
+        if self.format.is_extended {
+            (rec[14] & 0x0f, rec[14] >> 4)
+        } else {
+            (rec[14] & 0x07, (rec[14] >> 3) & 0x07)
+        }
+    }
+
     /// Largest classification code the format can store.
     pub fn max_classification(&self) -> u8 {
         if self.format.is_extended {

@@ -2,6 +2,7 @@
 //! between a reference and a result (by order when they line up, else by coordinates).
 
 pub mod ground;
+pub mod labels;
 pub mod segments;
 
 use crate::error::{Error, Result};
@@ -111,7 +112,7 @@ pub struct FieldPoints {
 
 /// Where a named attribute lives in a point record.
 #[derive(Clone, Copy, Debug)]
-enum FieldSource {
+pub(crate) enum FieldSource {
     Classification,
     UserData,
     PointSourceId,
@@ -120,7 +121,7 @@ enum FieldSource {
     Extra(usize, usize, u8),
 }
 
-fn field_source(path: &Path, header: &las::Header, name: &str) -> Result<FieldSource> {
+pub(crate) fn field_source(path: &Path, header: &las::Header, name: &str) -> Result<FieldSource> {
     match name {
         "classification" => return Ok(FieldSource::Classification),
         "user_data" => return Ok(FieldSource::UserData),
@@ -156,7 +157,7 @@ fn field_source(path: &Path, header: &las::Header, name: &str) -> Result<FieldSo
     }
 }
 
-fn field_value(path: &Path, p: &las::Point, src: FieldSource) -> Result<u32> {
+pub(crate) fn field_value(path: &Path, p: &las::Point, src: FieldSource) -> Result<u32> {
     Ok(match src {
         FieldSource::Classification => u32::from(u8::from(p.classification)),
         FieldSource::UserData => u32::from(p.user_data),
@@ -291,4 +292,64 @@ pub fn eval_segments(
     }
     segments::try_evaluate(&want, &got, Some(&xyz), &o.tolerances)
         .map_err(|e| Error::Config(format!("segment evaluation: {e}")))
+}
+
+/// Options of [`eval_labels`].
+#[derive(Clone, Debug)]
+pub struct LabelEvalOptions {
+    /// Reference attribute with class codes (`classification` or an extra-bytes name).
+    pub ref_field: String,
+    /// Result attribute with class codes.
+    pub res_field: String,
+    /// Scored reference classes (empty: all present).
+    pub classes: Vec<u8>,
+    /// Result codes mapped onto another code before scoring, e.g. (2, [11, 64, 65, 67]) to
+    /// score ground subclasses as ground.
+    pub map: Vec<(u8, Vec<u8>)>,
+    /// Coordinate precision for matching points, metres.
+    pub precision_m: f64,
+    /// Score only reference points found in the result.
+    pub allow_unmatched: bool,
+    /// Score only reference points with x in this range (e.g. away from training samples).
+    pub x_range: Option<(f64, f64)>,
+}
+
+/// Scores class labels (confusion matrix, omission, commission, mapping accuracy, F1; see
+/// [`labels`]). Points are matched as in [`match_points`].
+pub fn eval_labels(
+    reference: &Path,
+    result: &Path,
+    o: &LabelEvalOptions,
+) -> Result<labels::LabelEval> {
+    let r = load_fields(reference, o.precision_m, &[o.ref_field.as_str()])?;
+    let s = load_fields(result, o.precision_m, &[o.res_field.as_str()])?;
+    let key = |keys: &Vec<[i64; 3]>| LabelledPoints {
+        keys: keys.clone(),
+        classes: Vec::new(),
+    };
+    let m = match_points(&key(&r.keys), &key(&s.keys), o.allow_unmatched)?;
+    let mut lut: [u8; 256] = std::array::from_fn(|i| i as u8);
+    for (to, from) in &o.map {
+        for &f in from {
+            lut[f as usize] = *to;
+        }
+    }
+    let code = |v: u32, path: &Path| {
+        u8::try_from(v).map_err(|_| {
+            Error::Config(format!("{}: value {v} is not a class code", path.display()))
+        })
+    };
+    let (mut want, mut got) = (Vec::new(), Vec::new());
+    for (k, i) in m.iter().enumerate() {
+        let Some(i) = *i else { continue };
+        if let Some((x0, x1)) = o.x_range {
+            let x = r.xyz[k][0];
+            if !(x >= x0 && x < x1) {
+                continue;
+            }
+        }
+        want.push(code(r.values[0][k], reference)?);
+        got.push(lut[code(s.values[0][i], result)? as usize]);
+    }
+    Ok(labels::evaluate(&want, &got, &o.classes))
 }

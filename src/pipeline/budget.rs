@@ -32,8 +32,17 @@ pub struct BudgetPlan {
     pub tiles_in_flight: usize,
     /// Bytes one tile point costs while processed.
     pub bytes_per_tile_point: usize,
-    /// Largest tile (core + buffer points) a worker loads; larger ones are split.
+    /// Largest tile (core + buffer points) a worker loads when every stage works on the whole
+    /// buffer; see [`BudgetPlan::fits`] for the actual test.
     pub max_tile_points: u64,
+    /// Bytes one tile may take (the tile share of the budget).
+    pub tile_bytes: u64,
+    /// Bytes per point every tile point costs whatever the stages (record, id, xyz, carried
+    /// results), with slack.
+    pub base_bytes_per_point: usize,
+    /// Per stage: working bytes per point and how far beyond the core it works (None: the
+    /// whole buffer).
+    pub stages: Vec<(usize, Option<f64>)>,
 }
 
 impl BudgetPlan {
@@ -45,6 +54,23 @@ impl BudgetPlan {
         stage_bytes_per_point: usize,
         workers: usize,
     ) -> Result<Self> {
+        Self::with_stages(
+            budget_mb,
+            record_len,
+            &[(stage_bytes_per_point, None)],
+            workers,
+        )
+    }
+
+    /// Plans for stages given as (working bytes per point, context beyond the core in metres
+    /// or None for the whole buffer).
+    pub fn with_stages(
+        budget_mb: u64,
+        record_len: usize,
+        stages: &[(usize, Option<f64>)],
+        workers: usize,
+    ) -> Result<Self> {
+        let stage_bytes_per_point = stages.iter().map(|s| s.0).max().unwrap_or(0);
         let budget = budget_mb << 20;
         let workers = workers.max(1);
         let usable = budget.saturating_sub(FIXED_BYTES);
@@ -59,11 +85,13 @@ impl BudgetPlan {
         let tiles_in_flight = workers;
         // Per point: raw record + id + xyz + the stages' working memory, with 25 % slack for
         // allocator growth.
-        let bytes_per_tile_point = (record_len + 8 + 24 + stage_bytes_per_point) * 5 / 4;
+        let base_bytes_per_point = (record_len + 8 + 24 + 8) * 5 / 4;
+        let bytes_per_tile_point = base_bytes_per_point + stage_bytes_per_point * 5 / 4;
         let tile_bytes = usable
             .saturating_sub(reader_bytes)
             .saturating_sub(spill_bytes as u64);
-        let max_tile_points = tile_bytes / tiles_in_flight as u64 / bytes_per_tile_point as u64;
+        let tile_bytes = tile_bytes / tiles_in_flight as u64;
+        let max_tile_points = tile_bytes / bytes_per_tile_point as u64;
         if max_tile_points < 20_000 {
             return Err(Error::Budget(format!(
                 "memory budget {budget_mb} MiB leaves room for only {max_tile_points} points per tile with {workers} workers ({bytes_per_tile_point} bytes per point); use at least {} MiB or fewer threads",
@@ -79,7 +107,34 @@ impl BudgetPlan {
             tiles_in_flight,
             bytes_per_tile_point,
             max_tile_points,
+            tile_bytes,
+            base_bytes_per_point,
+            stages: stages.to_vec(),
         })
+    }
+
+    /// Whether a tile of `n_core` + `n_buf` points with buffer width `buffer_m` fits its share
+    /// of the budget. Stages that work only within `c` metres of the core are charged for the
+    /// core points plus the fraction c / buffer_m of the buffer points: exact for a drive
+    /// crossing the tile (points spread along one axis), an overestimate for points spread
+    /// over the area.
+    pub fn fits(&self, n_core: u64, n_buf: u64, buffer_m: f64) -> bool {
+        let n = n_core + n_buf;
+        let stage = self
+            .stages
+            .iter()
+            .map(|&(bpp, ctx)| {
+                let near = match ctx {
+                    Some(c) if buffer_m > 0.0 && c < buffer_m => {
+                        n_core + (n_buf as f64 * c / buffer_m).ceil() as u64
+                    }
+                    _ => n,
+                };
+                near * (bpp as u64 * 5 / 4)
+            })
+            .max()
+            .unwrap_or(0);
+        n * self.base_bytes_per_point as u64 + stage <= self.tile_bytes
     }
 }
 
@@ -94,5 +149,16 @@ mod tests {
         assert!(b.max_tile_points > 3 * a.max_tile_points);
         assert!(a.max_tile_points > 200_000, "{a:?}");
         assert!(BudgetPlan::new(64, 34, 4000, 8).is_err());
+    }
+
+    #[test]
+    fn stages_with_small_context_admit_larger_buffers() {
+        let p = BudgetPlan::with_stages(1024, 34, &[(96, None), (400, Some(5.0))], 2).unwrap();
+        let m = p.max_tile_points;
+        assert!(p.fits(m / 2, m / 2, 20.0));
+        // Twice the worst-case limit fits when most points are buffer the stage ignores...
+        assert!(p.fits(m / 4, 7 * m / 4, 20.0));
+        // ...but not when they are core points.
+        assert!(!p.fits(2 * m, 0, 20.0));
     }
 }

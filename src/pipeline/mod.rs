@@ -11,6 +11,7 @@
 
 pub mod budget;
 pub mod ground_stage;
+pub mod label_stage;
 pub mod segment_stage;
 pub mod stage;
 
@@ -111,13 +112,16 @@ pub fn run_with_stages(
         cfg.pipeline.threads
     };
     // Stages run one after the other on a tile and free their working memory before the next
-    // starts, so the largest one counts, plus 8 B a point for results carried between stages
-    // (segment labels).
-    let stage_bpp: usize = stages.iter().map(|s| s.bytes_per_point()).max().unwrap_or(0) + 8;
-    let plan = BudgetPlan::new(
+    // starts, so the largest one counts (the plan charges results carried between stages,
+    // such as segment labels, to every point).
+    let stage_mem: Vec<(usize, Option<f64>)> = stages
+        .iter()
+        .map(|s| (s.bytes_per_point(), s.context_m()))
+        .collect();
+    let plan = BudgetPlan::with_stages(
         cfg.pipeline.memory_budget_mb,
         set.layout.record_len,
-        stage_bpp,
+        &stage_mem,
         workers,
     )?;
     std::fs::create_dir_all(out_dir).map_err(|e| Error::io(out_dir, e))?;
@@ -395,7 +399,7 @@ fn work(job: TileJob, ctx: &RunCtx, res_tx: &Sender<Processed>) -> Result<()> {
     let mut todo = vec![job];
     let mut was_split = false;
     while let Some(job) = todo.pop() {
-        if job.n_core + job.n_buf > plan.max_tile_points {
+        if !plan.fits(job.n_core, job.n_buf, job.buffer_m) {
             was_split = true;
             let children = split_job(
                 &job,

@@ -89,6 +89,9 @@ impl Stage for SegmentStage {
     fn name(&self) -> &'static str {
         "segment"
     }
+    fn context_m(&self) -> Option<f64> {
+        Some(self.section.buffer_m)
+    }
     fn bytes_per_point(&self) -> usize {
         // Neighbour lists (u32 per neighbour, k of them), canonical order, normals, colour
         // in two forms, labels and the growing queues: measured 146 MB peak for 195 k points

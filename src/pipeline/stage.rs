@@ -29,6 +29,11 @@ pub trait Stage: Send + Sync {
     fn needs_context(&self) -> bool {
         true
     }
+    /// How far beyond the core the stage works, metres (None: the whole buffer). Sizes its
+    /// share of the memory budget.
+    fn context_m(&self) -> Option<f64> {
+        None
+    }
     /// Processes one tile.
     fn process(
         &self,
@@ -102,8 +107,11 @@ pub fn build_stages(cfg: &crate::config::Config) -> Result<Vec<Box<dyn Stage>>> 
             "segment" => Ok(Box::new(super::segment_stage::SegmentStage::new(
                 cfg.segment.clone(),
             )?) as Box<dyn Stage>),
+            "label" => Ok(
+                Box::new(super::label_stage::LabelStage::new(cfg.label.clone())?) as Box<dyn Stage>,
+            ),
             other => Err(crate::error::Error::Config(format!(
-                "stages.run: unknown stage \"{other}\" (known: ground, segment, stats)"
+                "stages.run: unknown stage \"{other}\" (known: ground, segment, label, stats)"
             ))),
         })
         .collect()
