@@ -12,7 +12,8 @@ use tessera::Config;
 
 fn run_and_score(input: &Path, extra: &[&str]) -> tessera::eval::labels::LabelEval {
     let tmp = tempfile::tempdir().unwrap();
-    let mut set: Vec<String> = vec!["stages.run=[\"ground\",\"segment\",\"label\",\"stats\"]".into()];
+    let mut set: Vec<String> =
+        vec!["stages.run=[\"ground\",\"segment\",\"label\",\"stats\"]".into()];
     set.extend(extra.iter().map(|s| s.to_string()));
     let airborne = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/airborne.toml");
     let cfg = Config::load(Some(&airborne), &set).unwrap();
@@ -44,7 +45,11 @@ fn ahn_building_f1() {
         // Point format 1 cannot hold the user codes (pole 69, vehicle 70): write format 6.
         let e = run_and_score(&f, &["output.point_format=6"]);
         let b = e.row(6).unwrap();
-        println!("{name}: building F1 {:.3}, ground F1 {:.3}", b.f1, e.row(2).unwrap().f1);
+        println!(
+            "{name}: building F1 {:.3}, ground F1 {:.3}",
+            b.f1,
+            e.row(2).unwrap().f1
+        );
         assert!(b.f1 >= 0.85, "{name}: building F1 {:.3} < 0.85", b.f1);
     }
 }
@@ -61,5 +66,9 @@ fn ign_building_and_ground_f1() {
         b.f1, b.precision, b.recall, g.f1
     );
     assert!(b.recall >= 0.85, "building recall {:.3}", b.recall);
-    assert!(b.f1 >= 0.70, "building F1 {:.3} fell below the measured 0.72", b.f1);
+    assert!(
+        b.f1 >= 0.70,
+        "building F1 {:.3} fell below the measured 0.72",
+        b.f1
+    );
 }

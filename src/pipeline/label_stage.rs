@@ -109,6 +109,13 @@ impl Stage for LabelStage {
     fn name(&self) -> &'static str {
         "label"
     }
+    fn max_class_code(&self) -> u8 {
+        let samples = self
+            .samples
+            .as_ref()
+            .map_or(0, |s| s.samples.iter().map(|s| s.class).max().unwrap_or(0));
+        self.section.codes.max().max(samples)
+    }
     fn context_m(&self) -> Option<f64> {
         Some(self.section.buffer_m)
     }

@@ -102,7 +102,25 @@ pub fn run_with_stages(
     progress: ProgressFn,
 ) -> Result<Summary> {
     let t0 = Instant::now();
-    let set = scan_inputs(inputs, cfg.output_point_format()?)?;
+    let requested = cfg.output_point_format()?;
+    let mut set = scan_inputs(inputs, requested)?;
+    let max_code = stages.iter().map(|s| s.max_class_code()).max().unwrap_or(0);
+    if requested.is_none() && max_code > 31 && !set.layout.format.is_extended {
+        // Legacy formats hold class codes up to 31; write the LAS 1.4 format with the same
+        // attributes (0, 1 → 6; 2, 3 → 7; 4 → 9; 5 → 10) rather than fail or truncate codes.
+        let f = &set.layout.format;
+        let up = match (f.has_color, f.has_waveform) {
+            (false, false) => 6,
+            (true, false) => 7,
+            (false, true) => 9,
+            (true, true) => 10,
+        };
+        tracing::info!(
+            "stages write class codes up to {max_code}: output point format {} -> {up}",
+            f.to_u8().unwrap_or(255)
+        );
+        set = scan_inputs(inputs, Some(up))?;
+    }
     let scan_s = t0.elapsed().as_secs_f64();
     let workers = if cfg.pipeline.threads == 0 {
         std::thread::available_parallelism()

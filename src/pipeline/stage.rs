@@ -34,6 +34,11 @@ pub trait Stage: Send + Sync {
     fn context_m(&self) -> Option<f64> {
         None
     }
+    /// Largest classification code the stage may write (codes above 31 need point formats
+    /// 6–10; the pipeline then upgrades legacy inputs unless the user chose a format).
+    fn max_class_code(&self) -> u8 {
+        0
+    }
     /// Processes one tile.
     fn process(
         &self,
