@@ -202,7 +202,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             }
             let cfg = Config::load(opts.config.as_deref(), &overrides)?;
             let tiles = out.join("tiles");
-            process(&[scene_dir.clone()], &tiles, &cfg, cli.quiet)?;
+            process(std::slice::from_ref(&scene_dir), &tiles, &cfg, cli.quiet)?;
             if cfg.stages.run.iter().any(|s| s == "label") {
                 let e = tessera::eval::eval_labels(
                     &scene_dir,

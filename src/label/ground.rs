@@ -159,8 +159,8 @@ pub fn label_ground(
                 let r = &mut regions[id as usize];
                 r.n += 1;
                 if let Some(l) = lab {
-                    for c in 0..3 {
-                        r.lab[c] += l[b][c];
+                    for (acc, v) in r.lab.iter_mut().zip(&l[b]) {
+                        *acc += v;
                     }
                 }
                 if normals[b].1 <= p.curvature as f32 {
@@ -231,8 +231,8 @@ pub fn label_ground(
             let moved = std::mem::take(&mut adj[cur as usize]);
             let tr = &mut regions[t as usize];
             tr.n += rn;
-            for c in 0..3 {
-                tr.lab[c] += rl[c];
+            for (acc, v) in tr.lab.iter_mut().zip(&rl) {
+                *acc += v;
             }
             adj[t as usize].extend(moved);
             if regions[t as usize].n >= p.min_region_points || pre_class[t as usize].is_some() {

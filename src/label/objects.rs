@@ -439,9 +439,9 @@ pub fn classify_objects(
         }
     }
     let mut objects: HashMap<u32, Vec<u32>> = HashMap::new();
-    for i in 0..n {
-        if point_vox[i] != u32::MAX {
-            let r = find(&mut parent, point_vox[i]);
+    for (i, &v) in point_vox.iter().enumerate() {
+        if v != u32::MAX {
+            let r = find(&mut parent, v);
             objects.entry(r).or_default().push(i as u32);
         }
     }

@@ -130,9 +130,9 @@ impl LabStats {
     /// Adds one colour.
     pub fn add(&mut self, lab: &[f64; 3]) {
         self.n += 1;
-        for c in 0..3 {
-            self.s[c] += lab[c];
-            self.s2[c] += lab[c] * lab[c];
+        for ((s, s2), v) in self.s.iter_mut().zip(&mut self.s2).zip(lab) {
+            *s += v;
+            *s2 += v * v;
         }
     }
     /// Points added.

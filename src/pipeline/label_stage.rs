@@ -81,7 +81,9 @@ impl LabelStage {
     /// Builds the stage, loading the training samples once.
     pub fn new(section: LabelSection) -> Result<Self> {
         let g = &section.ground;
-        if g.k < 3 || !(g.radius_m > 0.0) || !(section.buffer_m >= 0.0) {
+        let positive = g.radius_m.is_finite() && g.radius_m > 0.0;
+        let non_negative = section.buffer_m.is_finite() && section.buffer_m >= 0.0;
+        if g.k < 3 || !positive || !non_negative {
             return Err(Error::Config(
                 "label: ground.k must be >= 3, ground.radius_m > 0 and buffer_m >= 0".into(),
             ));
