@@ -58,7 +58,7 @@ fn street_subclasses_from_samples_of_another_part() {
         ],
     )
     .unwrap();
-    tessera::pipeline::run(&[scene.clone()], &out, &cfg, &|_, _| {}).unwrap();
+    tessera::pipeline::run(std::slice::from_ref(&scene), &out, &cfg, &|_, _| {}).unwrap();
 
     let x0 = WORLD_OFFSET[0] + 200.0;
     let opts = |classes: Vec<u8>| LabelEvalOptions {
