@@ -480,6 +480,12 @@ fn classify_shape(sh: &Shape, p: &ObjectParams, touches_building: bool) -> Objec
     let l0 = sh.eig[0].max(1e-12);
     let scattering = sh.eig[2] / l0;
     let [len, width] = sh.len;
+    // Pieces attached to a facade or roof (window reveals, balconies, downpipes) are building
+    // unless they look like foliage: tested before the pole rule, which thin vertical reveals
+    // would otherwise satisfy.
+    if touches_building && scattering < 0.05 {
+        return ObjectClass::Building;
+    }
     // Pole: tall and thin; an arm makes the major extent longer but the height dominates.
     if sh.hag_max >= p.pole_min_height_m
         && width <= p.pole_max_width_m
@@ -494,9 +500,6 @@ fn classify_shape(sh: &Shape, p: &ObjectParams, touches_building: bool) -> Objec
         && within(width, p.vehicle_width_m)
     {
         return ObjectClass::Vehicle;
-    }
-    if touches_building && scattering < 0.05 {
-        return ObjectClass::Building;
     }
     if sh.hag_max >= p.vegetation_min_height_m {
         return ObjectClass::HighVegetation;
