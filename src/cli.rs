@@ -53,7 +53,7 @@ impl RunOpts {
 /// Subcommands.
 #[derive(Debug, Subcommand)]
 pub enum Command {
-    /// Process LAS/LAZ files (or directories of them) into labelled tiles.
+    /// Process LAS/LAZ files and MCAP drives (or directories of them) into labelled tiles.
     Run {
         /// Input files or directories.
         #[arg(required = true)]
@@ -118,7 +118,8 @@ pub enum Command {
         #[command(subcommand)]
         what: EvalCommand,
     },
-    /// Print facts about a LAS/LAZ file.
+    /// Print facts about a LAS/LAZ file (header) or an MCAP recording (topics, message
+    /// counts, time span, point counts).
     Info {
         /// The file.
         file: PathBuf,

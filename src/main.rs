@@ -300,6 +300,10 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             }
         },
         Command::Info { file } => {
+            if tessera::io::mcap::is_mcap(&file) {
+                print!("{}", tessera::io::mcap::info(&file)?.to_text());
+                return Ok(());
+            }
             let f = tessera::io::input::scan_file(&file, 0)?;
             let h = &f.header;
             let b = h.bounds();

@@ -101,7 +101,14 @@ pub fn run_with_stages(
     progress: ProgressFn,
 ) -> Result<Summary> {
     let t0 = Instant::now();
-    let set = scan_inputs(inputs, cfg.output_point_format()?)?;
+    // MCAP drives are decoded and georeferenced first, into LAS parts whose headers carry the
+    // exact bounds the tiler needs; the parts are removed when `staged` is dropped.
+    let staged = crate::io::mcap::stage_inputs(
+        inputs,
+        &crate::io::mcap::convert::work_dir(out_dir, &cfg.pipeline.spill_dir),
+        &cfg.mcap,
+    )?;
+    let set = scan_inputs(&staged.paths, cfg.output_point_format()?)?;
     let scan_s = t0.elapsed().as_secs_f64();
     let workers = if cfg.pipeline.threads == 0 {
         std::thread::available_parallelism()
@@ -151,6 +158,7 @@ pub fn run_with_stages(
         .insert("total".into(), t0.elapsed().as_secs_f64());
     summary.version = env!("CARGO_PKG_VERSION").into();
     summary.inputs = set.files.len();
+    summary.mcap = staged.reports.clone();
     summary.points_in = set.total_points;
     summary.memory_budget_mb = cfg.pipeline.memory_budget_mb;
     summary.point_format = set.layout.format.to_u8().unwrap_or(255);
