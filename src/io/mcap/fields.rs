@@ -117,10 +117,12 @@ impl CloudSchema {
                 .map(|n| n.to_string()),
             name => match c.field(name) {
                 Some(f) if scalar(f) => Some(name.to_string()),
-                _ => return Err(format!(
+                _ => {
+                    return Err(format!(
                     "mcap.time_field \"{name}\" is not a scalar field of the cloud (fields: {})",
                     field_list(c)
-                )),
+                ))
+                }
             },
         };
         let intensity_field = c
