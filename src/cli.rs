@@ -88,6 +88,16 @@ pub enum Command {
         /// Number of houses (buildings scene).
         #[arg(long, default_value_t = 4)]
         houses: usize,
+        /// Write the street as a drive recording instead: a simulated spinning LiDAR, as ROS 2
+        /// MCAP (PointCloud2 + /tf), with truth fields per point (`drive.mcap`).
+        #[arg(long)]
+        mcap: bool,
+        /// Beams of the simulated LiDAR (--mcap).
+        #[arg(long, default_value_t = 32)]
+        rings: u32,
+        /// Firings per revolution of the simulated LiDAR (--mcap).
+        #[arg(long, default_value_t = 1024)]
+        columns: u32,
     },
     /// Density reduction by minimum point spacing (Sapkota §5.3), streaming: a point is kept
     /// unless a kept point lies within the spacing.

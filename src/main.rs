@@ -133,7 +133,31 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             file_length_m,
             scene,
             houses,
+            mcap,
+            rings,
+            columns,
         } => {
+            if mcap {
+                let p = tessera::synth::lidar::LidarParams {
+                    scene: tessera::synth::SceneParams {
+                        seed,
+                        length_m,
+                        ..Default::default()
+                    },
+                    rings,
+                    columns,
+                    ..Default::default()
+                };
+                let s = tessera::synth::drive::write_drive(&p, &out)?;
+                tracing::info!(
+                    "wrote {} clouds ({} returns of {} beams) to {}",
+                    s.clouds,
+                    s.points,
+                    s.beams,
+                    out.join("drive.mcap").display()
+                );
+                return Ok(());
+            }
             if scene == SceneKind::Buildings {
                 let mut p = tessera::synth::buildings::BuildingParams {
                     seed,

@@ -410,6 +410,7 @@ struct CloudPass<'a> {
     work_dir: &'a Path,
     topic_index: HashMap<String, u16>,
     // Per-cloud scratch, reused.
+    pose_cache: HashMap<i128, Iso>,
     xyz: Vec<[f64; 3]>,
     attrs: Vec<(f64, u16, [u16; 3])>,
     extras: Vec<u8>,
@@ -521,6 +522,7 @@ impl CloudPass<'_> {
         self.attrs.clear();
         self.extras.clear();
         let mut time_map: Option<TimeMap> = None;
+        self.pose_cache.clear();
         let mut last_t = i128::MIN;
         let mut pose = cloud_pose;
         let (mut nan, mut near) = (0u64, 0u64);
@@ -550,12 +552,23 @@ impl CloudPass<'_> {
                 None => stamp_ns,
             };
             if deskew && t_ns != last_t {
-                pose = self.tf.eval(&chain, t_ns, &self.lim).map_err(|e| {
-                    PlaceError::Unusable(Unusable(
-                        "missing pose",
-                        format!("point {i} (per-point time): {e}"),
-                    ))
-                })?;
+                // Organised clouds repeat each firing time once per ring: evaluate the chain
+                // once per distinct time.
+                pose = match self.pose_cache.get(&t_ns) {
+                    Some(p) => *p,
+                    None => {
+                        let p = self.tf.eval(&chain, t_ns, &self.lim).map_err(|e| {
+                            PlaceError::Unusable(Unusable(
+                                "missing pose",
+                                format!("point {i} (per-point time): {e}"),
+                            ))
+                        })?;
+                        if self.pose_cache.len() < 1 << 16 {
+                            self.pose_cache.insert(t_ns, p);
+                        }
+                        p
+                    }
+                };
                 last_t = t_ns;
             }
             let w = pose * Point3::new(x, y, z);
@@ -720,6 +733,7 @@ pub fn convert_file(path: &Path, work_dir: &Path, p: &McapParams) -> Result<Conv
         writer: None,
         work_dir,
         topic_index: HashMap::new(),
+        pose_cache: HashMap::new(),
         xyz: Vec::new(),
         attrs: Vec::new(),
         extras: Vec::new(),

@@ -22,6 +22,7 @@
 //! where in LAS), [`convert`] (the two passes and LAS writing), [`info`] (`tessera info`).
 
 pub mod convert;
+pub mod encode;
 pub mod fields;
 pub mod info;
 pub mod pointcloud2;

@@ -1,23 +1,24 @@
 //! Streaming access to an MCAP file through a read-only memory map.
 //!
 //! Memory stays bounded whatever the file size:
-//! - With a summary that indexes chunks, messages are read chunk by chunk
-//!   ([`mcap::Summary::stream_chunk`] decompresses one chunk through the crate's streaming
-//!   sans-io reader), chunks that hold none of the wanted channels are skipped without being
-//!   decompressed, and each chunk's pages are released from the mapping once it is done.
+//! - Records are decoded by the crate's sans-io [`mcap::sans_io::LinearReader`], fed from the
+//!   map in slices of at most 4 MiB. It decompresses a chunk as a stream into a buffer that
+//!   holds at most one record, and hands out messages borrowed from that buffer (no copy per
+//!   message). Mapped pages behind the read position are released every 32 MiB (and after
+//!   every chunk), since touched file pages count in the resident set until reclaimed.
+//! - With a summary that indexes chunks, only the chunk records holding a wanted channel are
+//!   fed (the others are never decompressed), and damage inside one chunk (bad CRC, corrupt
+//!   compressed data) costs that chunk only.
 //! - Without one (no summary, no chunk index, or a damaged footer, e.g. a truncated file), the
-//!   file is scanned linearly with [`mcap::sans_io::LinearReader`], fed from the map in
-//!   bounded slices; its buffers hold at most one record (a chunk is decompressed as a
-//!   stream), and the mapped pages behind the read position are released every few MiB.
+//!   whole file is fed from the start; a truncation ends the scan with a note of where.
 //!
-//! In both cases the resident memory is about one chunk plus one message, not the file.
+//! Either way the resident memory is about one chunk plus one message, not the file.
 
 use crate::error::{Error, Result};
 use mcap::records::Record;
 use mcap::sans_io::{LinearReadEvent, LinearReader, LinearReaderOptions};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 
 /// Bytes fed to the linear reader between two releases of mapped pages.
 const RELEASE_EVERY: usize = 32 << 20;
@@ -203,117 +204,136 @@ impl McapSource {
         on_message: &mut dyn FnMut(MessageRef) -> Result<()>,
         stop_on_damage: bool,
     ) -> Result<ScanOutcome> {
-        if self.uses_index() {
-            self.scan_indexed(want, on_message, stop_on_damage)
-        } else {
-            self.scan_linear(want, on_message)
-        }
-    }
-
-    fn scan_indexed(
-        &self,
-        want: &mut dyn FnMut(&ChannelInfo) -> bool,
-        on_message: &mut dyn FnMut(MessageRef) -> Result<()>,
-        stop_on_damage: bool,
-    ) -> Result<ScanOutcome> {
-        let Some(summary) = self.summary.as_ref() else {
-            return Ok(ScanOutcome::default());
+        let mut out = ScanOutcome::default();
+        let mut st = ScanState {
+            infos: HashMap::new(),
+            acc: mcap::read::ChannelAccumulator::default(),
+            last: None,
         };
-        let mut out = ScanOutcome {
-            indexed: true,
-            ..Default::default()
+        let Some(summary) = self.summary.as_ref().filter(|_| self.uses_index()) else {
+            self.read_ranges(
+                &[(0, self.map.len())],
+                false,
+                &mut st,
+                want,
+                on_message,
+                &mut out,
+            )?;
+            return Ok(out);
         };
-        let mut infos: HashMap<u16, (ChannelInfo, bool)> = HashMap::new();
+        out.indexed = true;
         for (id, c) in &summary.channels {
             let info = ChannelInfo::from_mcap(c);
             let w = want(&info);
-            infos.insert(*id, (info, w));
+            st.infos.insert(*id, (info, w));
         }
         let mut chunks: Vec<&mcap::records::ChunkIndex> = summary.chunk_indexes.iter().collect();
         chunks.sort_by_key(|c| c.chunk_start_offset);
+        let mut ranges = Vec::new();
         for ci in chunks {
             let wanted = ci.message_index_offsets.is_empty()
                 || ci
                     .message_index_offsets
                     .keys()
-                    .any(|id| infos.get(id).is_some_and(|i| i.1));
+                    .any(|id| st.infos.get(id).is_some_and(|i| i.1));
+            let (a, len) = (ci.chunk_start_offset as usize, ci.chunk_length as usize);
             if !wanted {
                 out.chunks_skipped += 1;
-                continue;
-            }
-            let res = (|| -> Result<std::result::Result<(), String>> {
-                let it = match summary.stream_chunk(&self.map, ci) {
-                    Ok(it) => it,
-                    Err(e) => return Ok(Err(e.to_string())),
-                };
-                for m in it {
-                    let m = match m {
-                        Ok(m) => m,
-                        Err(e) => return Ok(Err(e.to_string())),
-                    };
-                    let Some((info, true)) = infos.get(&m.channel.id) else {
-                        continue;
-                    };
-                    out.messages += 1;
-                    on_message(MessageRef {
-                        channel: info,
-                        log_time: m.log_time,
-                        data: &m.data,
-                    })?;
-                }
-                Ok(Ok(()))
-            })();
-            crate::sys::release_mapped(
-                &self.map,
-                ci.chunk_start_offset as usize,
-                ci.chunk_length as usize,
-            );
-            if let Err(why) = res? {
+            } else if a.checked_add(len).is_none_or(|e| e > self.map.len()) {
                 out.damage.push(format!(
-                    "chunk at byte {} (messages {} .. {} ns): {why}",
-                    ci.chunk_start_offset, ci.message_start_time, ci.message_end_time
+                    "chunk index points at bytes {a}..{} beyond the end of the {}-byte file",
+                    a.saturating_add(len),
+                    self.map.len()
                 ));
-                if stop_on_damage {
-                    break;
-                }
+            } else {
+                ranges.push((a, a + len));
             }
+        }
+        if stop_on_damage && !out.damage.is_empty() {
+            return Ok(out);
+        }
+        // One reader over the wanted chunk records, fed back to back; after damage inside a
+        // chunk, a fresh reader resumes at the next chunk.
+        let mut i = 0;
+        while i < ranges.len() {
+            let before = out.damage.len();
+            let done = self.read_ranges(&ranges[i..], true, &mut st, want, on_message, &mut out)?;
+            if out.damage.len() == before || stop_on_damage {
+                break;
+            }
+            i += done + 1; // skip the damaged chunk
         }
         Ok(out)
     }
 
-    fn scan_linear(
+    /// Feeds `ranges` of the map to one sans-io reader and dispatches its records. Returns the
+    /// number of ranges fully consumed (all of them unless damage stopped the reader).
+    fn read_ranges(
         &self,
+        ranges: &[(usize, usize)],
+        chunks_only: bool,
+        st: &mut ScanState,
         want: &mut dyn FnMut(&ChannelInfo) -> bool,
         on_message: &mut dyn FnMut(MessageRef) -> Result<()>,
-    ) -> Result<ScanOutcome> {
-        let mut out = ScanOutcome::default();
-        let mut reader = LinearReader::new_with_options(
-            LinearReaderOptions::default()
-                .with_skip_end_magic(true)
-                .with_record_length_limit(self.map.len()),
-        );
-        let mut acc = mcap::read::ChannelAccumulator::default();
-        let mut infos: HashMap<u16, (ChannelInfo, bool)> = HashMap::new();
-        let mut pos = 0usize;
-        let mut released = 0usize;
-        let mut last: Option<(String, u64)> = None;
+        out: &mut ScanOutcome,
+    ) -> Result<usize> {
+        // Records inside chunks may be larger than the (compressed) file: the limit only
+        // guards against absurd lengths from corrupt data.
+        let biggest_chunk = self
+            .summary
+            .iter()
+            .flat_map(|s| s.chunk_indexes.iter().map(|c| c.uncompressed_size as usize))
+            .max()
+            .unwrap_or(0);
+        let limit = (1usize << 30).max(self.map.len()).max(biggest_chunk);
+        let mut opts = LinearReaderOptions::default()
+            .with_validate_chunk_crcs(true)
+            .with_record_length_limit(limit);
+        if chunks_only {
+            opts = opts.with_skip_start_magic(true).with_skip_end_magic(true);
+        }
+        let mut reader = LinearReader::new_with_options(opts);
+        let (mut r, mut pos) = (0usize, ranges.first().map(|x| x.0).unwrap_or(0));
+        let mut released = pos;
         let mut past_data_end = false;
+        let release = |from: usize, to: usize| {
+            if to > from {
+                crate::sys::release_mapped(&self.map, from, to - from);
+            }
+        };
         while let Some(ev) = reader.next_event() {
             let ev = match ev {
                 Ok(ev) => ev,
                 Err(e) => {
-                    out.damage.push(damage_text(&e, pos, self.map.len(), &last));
-                    break;
+                    out.damage
+                        .push(damage_text(&e, pos, self.map.len(), &st.last));
+                    release(released, pos);
+                    return Ok(r);
                 }
             };
             match ev {
                 LinearReadEvent::ReadRequest(need) => {
-                    let n = need.min(FEED_MAX).min(self.map.len() - pos);
+                    while r < ranges.len() && pos >= ranges[r].1 {
+                        release(released, ranges[r].1);
+                        r += 1;
+                        if r < ranges.len() {
+                            pos = ranges[r].0;
+                            released = pos;
+                        }
+                    }
+                    if r == ranges.len() {
+                        if chunks_only {
+                            return Ok(r); // every wanted chunk read
+                        }
+                        reader.notify_read(0); // end of file: the reader checks it ends well
+                        continue;
+                    }
+                    let n = need.min(FEED_MAX).min(ranges[r].1 - pos);
                     reader.insert(n).copy_from_slice(&self.map[pos..pos + n]);
                     reader.notify_read(n);
                     pos += n;
                     if pos - released >= RELEASE_EVERY {
-                        crate::sys::release_mapped(&self.map, released, pos - released);
+                        release(released, pos);
                         released = pos;
                     }
                 }
@@ -322,40 +342,42 @@ impl McapSource {
                         continue; // the summary repeats schemas and channels
                     }
                     let rec = match mcap::parse_record(opcode, data) {
-                        Ok(r) => r,
+                        Ok(rec) => rec,
                         Err(e) => {
-                            out.damage.push(damage_text(&e, pos, self.map.len(), &last));
-                            break;
+                            out.damage
+                                .push(damage_text(&e, pos, self.map.len(), &st.last));
+                            release(released, pos);
+                            return Ok(r);
                         }
                     };
                     let linked = match rec {
                         Record::Schema { header, data } => {
-                            acc.add_schema_from_slice(header, &data).map(|_| ())
+                            st.acc.add_schema_from_slice(header, &data).map(|_| ())
                         }
-                        Record::Channel(c) => acc.add_channel(c),
+                        Record::Channel(c) => st.acc.add_channel(c),
                         Record::DataEnd(_) => {
                             past_data_end = true;
                             Ok(())
                         }
                         Record::Message { header, data } => {
                             let id = header.channel_id;
-                            if !infos.contains_key(&id) {
-                                let Some(c) = acc.get(id) else {
+                            if !st.infos.contains_key(&id) {
+                                let Some(c) = st.acc.get(id) else {
                                     return Err(Error::bad_input(
                                         &self.path,
                                         format!(
-                                            "message at log time {} ns refers to channel {id}, which was never defined",
-                                            header.log_time
+                                            "message at log time {} refers to channel {id}, which was never defined",
+                                            fmt_ns(header.log_time)
                                         ),
                                     ));
                                 };
                                 let info = ChannelInfo::from_mcap(&c);
                                 let w = want(&info);
-                                infos.insert(id, (info, w));
+                                st.infos.insert(id, (info, w));
                             }
-                            if let Some((info, true)) = infos.get(&id) {
+                            if let Some((info, true)) = st.infos.get(&id) {
                                 out.messages += 1;
-                                last = Some((info.topic.clone(), header.log_time));
+                                st.last = Some((info.topic.clone(), header.log_time));
                                 on_message(MessageRef {
                                     channel: info,
                                     log_time: header.log_time,
@@ -367,15 +389,24 @@ impl McapSource {
                         _ => Ok(()),
                     };
                     if let Err(e) = linked {
-                        out.damage.push(damage_text(&e, pos, self.map.len(), &last));
-                        break;
+                        out.damage
+                            .push(damage_text(&e, pos, self.map.len(), &st.last));
+                        release(released, pos);
+                        return Ok(r);
                     }
                 }
             }
         }
-        crate::sys::release_mapped(&self.map, released, self.map.len() - released);
-        Ok(out)
+        release(released, pos);
+        Ok(ranges.len())
     }
+}
+
+/// Channel bookkeeping shared by the readers of one scan.
+struct ScanState {
+    infos: HashMap<u16, (ChannelInfo, bool)>,
+    acc: mcap::read::ChannelAccumulator<'static>,
+    last: Option<(String, u64)>,
 }
 
 fn damage_text(
@@ -401,6 +432,3 @@ fn damage_text(
 pub fn fmt_ns(ns: u64) -> String {
     format!("{}.{:09} s", ns / 1_000_000_000, ns % 1_000_000_000)
 }
-
-/// Shared channel handle type of the crate, for callers that link channels themselves.
-pub type McapChannel = Arc<mcap::Channel<'static>>;
