@@ -424,7 +424,19 @@ impl CloudPass<'_> {
     fn cloud(&mut self, m: MessageRef, rep: &mut McapReport) -> Result<()> {
         let c = m.channel;
         rep.clouds += 1;
-        let enc = encoding_of(self.src.path(), c)?;
+        let Some(enc) = Encoding::from_channel(&c.message_encoding) else {
+            let why = format!(
+                "message encoding \"{}\" (schema {} \"{}\") is not supported; tessera reads \"ros1\" and \"cdr\" (ROS 2)",
+                c.message_encoding, c.schema_encoding, c.schema_name
+            );
+            return self.unusable(
+                c,
+                m.log_time,
+                None,
+                Unusable("unsupported encoding", why),
+                rep,
+            );
+        };
         let cloud = match pointcloud2::decode(m.data, enc) {
             Ok(cl) => cl,
             Err(e) => {
@@ -753,13 +765,12 @@ pub fn convert_file(path: &Path, work_dir: &Path, p: &McapParams) -> Result<Conv
     };
     let mut on_message = |m: MessageRef| -> Result<()> {
         if !message_type_ok(m.channel, &["sensor_msgs/PointCloud2"]) {
-            return Err(Error::bad_input(
-                path,
-                format!(
-                    "topic {} carries \"{}\", not sensor_msgs/PointCloud2",
-                    m.channel.topic, m.channel.schema_name
-                ),
-            ));
+            return Err(Error::Config(format!(
+                "{}: mcap.cloud_topics names {}, which carries \"{}\", not sensor_msgs/PointCloud2",
+                path.display(),
+                m.channel.topic,
+                m.channel.schema_name
+            )));
         }
         let n = pass.topic_index.len() as u16;
         pass.topic_index.entry(m.channel.topic.clone()).or_insert(n);
