@@ -122,12 +122,10 @@ fn ouster_las_conversion_keeps_values_in_their_las_places() {
         for v in &c.values {
             let q = &pts[k];
             k += 1;
-            for a in 0..3 {
+            for (a, (got, want)) in q.xyz.iter().zip(v).enumerate() {
                 assert!(
-                    (q.xyz[a] - v[a]).abs() <= 0.5e-4 + 1e-9,
-                    "point {k} axis {a}: {} vs {}",
-                    q.xyz[a],
-                    v[a]
+                    (got - want).abs() <= 0.5e-4 + 1e-9,
+                    "point {k} axis {a}: {got} vs {want}"
                 );
             }
             assert_eq!(q.intensity as f64, v[3].round().clamp(0.0, 65535.0));
@@ -155,7 +153,7 @@ fn ouster_through_the_whole_pipeline() {
     )
     .unwrap();
     let out = tmp.path().join("out");
-    let s = tessera::pipeline::run(&[path.clone()], &out, &cfg, &|_, _| {}).unwrap();
+    let s = tessera::pipeline::run(std::slice::from_ref(&path), &out, &cfg, &|_, _| {}).unwrap();
     assert_eq!(s.mcap.len(), 1);
     let r = &s.mcap[0];
     // 0.5 m minimum range drops the no-return beams (reported as (0, 0, 0)).

@@ -173,7 +173,8 @@ fn drive_georeferenced_with_tf_odometry_or_trajectory_matches_numpy() {
     let base = ["mcap.min_range_m=0.0", "mcap.scale_m=0.000001"];
     let traj = fx.dir.join("trajectory.csv");
     let traj_set = format!("mcap.trajectory_file=\"{}\"", traj.display());
-    let cases: Vec<(&str, Vec<String>, &Vec<[f64; 3]>)> = vec![
+    type Case<'a> = (&'a str, Vec<String>, &'a Vec<[f64; 3]>);
+    let cases: Vec<Case> = vec![
         ("tf, de-skewed", vec![], &deskew),
         (
             "tf, pose at the cloud stamp",
@@ -267,8 +268,8 @@ fn organised_big_endian_cloud_keeps_every_field() {
                 }
                 let p = &pts[k];
                 k += 1;
-                for a in 0..3 {
-                    assert!((p.xyz[a] - r[a]).abs() <= 5e-7 + 1e-9, "{file} axis {a}");
+                for (a, (got, want)) in p.xyz.iter().zip(&r).enumerate() {
+                    assert!((got - want).abs() <= 5e-7 + 1e-9, "{file} axis {a}");
                 }
                 assert_eq!(p.intensity as f64, r[3]);
                 for (name, col) in [("ring", 4), ("flag", 5), ("label", 7), ("code", 8)] {

@@ -285,6 +285,7 @@ pub(crate) mod tests {
 
     /// Serialises a PointCloud2 in CDR (little- or big-endian encapsulation) — a test helper
     /// independent of the decoder's code paths (alignment computed by hand per field).
+    #[allow(clippy::too_many_arguments)]
     pub fn cdr_cloud(
         big: bool,
         frame: &str,
@@ -298,7 +299,7 @@ pub(crate) mod tests {
     ) -> Vec<u8> {
         let mut b: Vec<u8> = vec![0, if big { 0 } else { 1 }, 0, 0];
         let pad = |b: &mut Vec<u8>, n: usize| {
-            while (b.len() - 4) % n != 0 {
+            while !(b.len() - 4).is_multiple_of(n) {
                 b.push(0);
             }
         };
