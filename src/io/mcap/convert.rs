@@ -1,34 +1,22 @@
 //! MCAP → georeferenced LAS parts: pass 1 gathers poses, pass 2 decodes, cleans and places
 //! the clouds and writes them, streaming, to uncompressed LAS 1.4 files in a work directory.
 
-use super::fields::{unpack_rgb, Bound, CloudSchema};
 use super::reader::{fmt_ns, ChannelInfo, McapSource, MessageRef};
-use super::tf::{decode_odometry, decode_tf_message, Chain, Iso, Limits, TfTree};
+use super::tf::{decode_odometry, decode_tf_message, Limits, TfTree};
 use super::trajectory::read_trajectory;
-use super::wire::{Encoding, Stamp};
-use super::{is_mcap, pointcloud2, McapParams, OnError, PoseSource};
+use super::wire::Encoding;
+use super::{is_mcap, McapParams, OnError, PoseSource};
 use crate::error::{Error, Result};
 use crate::io::input::expand_paths;
-use las::point::Format;
-use las::{Builder, PointDataBuilder, Transform, Vector, Version, Vlr, Writer};
-use nalgebra::Point3;
 use serde::Serialize;
-use std::collections::{BTreeMap, HashMap};
-use std::fs::File;
-use std::io::BufWriter;
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-/// Unix time minus this is LAS "adjusted standard GPS time" (GPS seconds − 1e9): the GPS
-/// epoch is 1980-01-06 (Unix 315 964 800) and GPS time is ahead of UTC by the 18 leap seconds
-/// inserted since (the count valid since 2017-01-01; earlier drives are off by a second or
-/// two, which only shifts all times equally).
-pub const UNIX_TO_ADJUSTED_GPS_S: i128 = 315_964_800 - 18 + 1_000_000_000;
+pub use super::place::UNIX_TO_ADJUSTED_GPS_S;
 
 /// Reasons kept verbatim in the report (the counts cover the rest).
 const MAX_NOTES: usize = 20;
-/// Records buffered before they are handed to the LAS writer.
-const FLUSH_POINTS: usize = 1 << 16;
 
 /// What happened to one MCAP input (written into `summary.json`).
 #[derive(Debug, Clone, Default, Serialize)]
@@ -94,7 +82,7 @@ pub struct Conversion {
     pub report: McapReport,
 }
 
-fn message_type_ok(c: &ChannelInfo, want: &[&str]) -> bool {
+pub(crate) fn message_type_ok(c: &ChannelInfo, want: &[&str]) -> bool {
     let t = c.message_type();
     want.iter().any(|w| *w == t)
 }
@@ -209,7 +197,7 @@ fn gather_poses(
     Ok((tf, topics_seen))
 }
 
-fn note(rep: &mut McapReport, s: String) {
+pub(crate) fn note(rep: &mut McapReport, s: String) {
     if rep.notes.len() < MAX_NOTES {
         rep.notes.push(s);
     }
@@ -243,472 +231,6 @@ fn handle_damage(
     Ok(())
 }
 
-/// Streams LAS parts: one uncompressed LAS 1.4 file per `part_points` points.
-struct PartWriter {
-    dir: PathBuf,
-    stem: String,
-    header: las::Header,
-    writer: Option<Writer<BufWriter<File>>>,
-    current: Option<PathBuf>,
-    in_part: u64,
-    part_points: u64,
-    parts: Vec<PathBuf>,
-    buf: Vec<u8>,
-    format: Format,
-    transforms: Vector<Transform>,
-}
-
-impl PartWriter {
-    fn write(&mut self, records: &[u8], n: u64) -> Result<()> {
-        if self.writer.is_none() {
-            let path = self
-                .dir
-                .join(format!("{}.part{:04}.las", self.stem, self.parts.len()));
-            let f = File::create(&path).map_err(|e| Error::io(&path, e))?;
-            let w = Writer::new(BufWriter::with_capacity(1 << 20, f), self.header.clone())
-                .map_err(|e| Error::las(&path, e))?;
-            self.writer = Some(w);
-            self.current = Some(path);
-            self.in_part = 0;
-        }
-        self.buf.extend_from_slice(records);
-        self.in_part += n;
-        if self.buf.len() >= FLUSH_POINTS * self.header.point_format().len() as usize {
-            self.flush()?;
-        }
-        Ok(())
-    }
-
-    fn flush(&mut self) -> Result<()> {
-        let (Some(w), Some(path)) = (self.writer.as_mut(), self.current.as_ref()) else {
-            return Ok(());
-        };
-        if self.buf.is_empty() {
-            return Ok(());
-        }
-        let data = PointDataBuilder::new()
-            .with_format(self.format)
-            .with_transforms(self.transforms)
-            .build_from_bytes(std::mem::take(&mut self.buf))
-            .map_err(|e| Error::las(path, e))?;
-        w.write_points(&data).map_err(|e| Error::las(path, e))
-    }
-
-    /// Ends the current part if it is full (called between clouds, so a cloud never spans two
-    /// parts).
-    fn maybe_roll(&mut self) -> Result<()> {
-        if self.in_part >= self.part_points {
-            self.close_part()?;
-        }
-        Ok(())
-    }
-
-    fn close_part(&mut self) -> Result<()> {
-        self.flush()?;
-        if let (Some(mut w), Some(path)) = (self.writer.take(), self.current.take()) {
-            w.close().map_err(|e| Error::las(&path, e))?;
-            self.parts.push(path);
-        }
-        Ok(())
-    }
-}
-
-fn las_header(
-    schema: &CloudSchema,
-    transforms: Vector<Transform>,
-    p: &McapParams,
-    src: &Path,
-) -> Result<las::Header> {
-    let mut b = Builder::from((1, 4));
-    b.version = Version::new(1, 4);
-    b.point_format = schema.format();
-    b.transforms = transforms;
-    b.gps_time_type = las::GpsTimeType::Standard;
-    b.generating_software = format!("tessera {} mcap", env!("CARGO_PKG_VERSION"));
-    if let Some(v) = schema.extra_bytes_vlr() {
-        b.vlrs.push(v);
-    }
-    let crs = p.crs.trim();
-    let wkt = [
-        "PROJCS",
-        "PROJCRS",
-        "GEOGCS",
-        "GEOGCRS",
-        "COMPD_CS",
-        "COMPOUNDCRS",
-        "GEOCCS",
-    ]
-    .iter()
-    .any(|k| crs.starts_with(k));
-    if wkt {
-        let mut data = crs.as_bytes().to_vec();
-        data.push(0);
-        b.vlrs.push(Vlr {
-            user_id: "LASF_Projection".into(),
-            record_id: 2112,
-            description: "OGC WKT (mcap.crs)".into(),
-            data,
-        });
-    } else if !crs.is_empty() {
-        b.vlrs.push(Vlr {
-            user_id: "tessera".into(),
-            record_id: 1,
-            description: "CRS note (mcap.crs)".into(),
-            data: crs.as_bytes().to_vec(),
-        });
-    }
-    b.into_header()
-        .map_err(|e| Error::bad_input(src, format!("cannot build the LAS header: {e}")))
-}
-
-/// How a cloud's per-point time values map to absolute nanoseconds.
-#[derive(Debug, Clone, Copy)]
-struct TimeMap {
-    unit_s: f64,
-    absolute: bool,
-}
-
-impl TimeMap {
-    /// Decides from the cloud's first finite time value: values past 1e6 s are absolute
-    /// epoch times, smaller ones offsets from the header stamp. With an automatic unit, a
-    /// float field holding more than 1e14 units is taken as nanoseconds (Livox style).
-    fn detect(a: &pointcloud2::Accessor, unit_s: f64, auto_unit: bool, v: f64) -> TimeMap {
-        let mut unit = unit_s;
-        if auto_unit && !pointcloud2::datatype::is_integer(a.datatype) && v.abs() > 1e14 {
-            unit = 1e-9;
-        }
-        TimeMap {
-            unit_s: unit,
-            absolute: (v * unit).abs() > 1e6,
-        }
-    }
-
-    #[inline]
-    fn to_ns(self, v: f64, stamp_ns: i128) -> i128 {
-        let ns = if self.unit_s == 1e-9 {
-            v.round() as i128
-        } else {
-            (v * self.unit_s * 1e9).round() as i128
-        };
-        if self.absolute {
-            ns
-        } else {
-            stamp_ns + ns
-        }
-    }
-}
-
-/// Everything pass 2 keeps while going through the clouds.
-struct CloudPass<'a> {
-    src: &'a McapSource,
-    p: &'a McapParams,
-    tf: &'a TfTree,
-    lim: Limits,
-    schema: Option<CloudSchema>,
-    chains: HashMap<String, std::result::Result<Chain, String>>,
-    writer: Option<PartWriter>,
-    work_dir: &'a Path,
-    topic_index: HashMap<String, u16>,
-    // Per-cloud scratch, reused.
-    pose_cache: HashMap<i128, Iso>,
-    xyz: Vec<[f64; 3]>,
-    attrs: Vec<(f64, u16, [u16; 3])>,
-    extras: Vec<u8>,
-    records: Vec<u8>,
-}
-
-/// Why a cloud could not be used: a kind for the counts and a message.
-struct Unusable(&'static str, String);
-
-impl CloudPass<'_> {
-    fn cloud(&mut self, m: MessageRef, rep: &mut McapReport) -> Result<()> {
-        let c = m.channel;
-        rep.clouds += 1;
-        let Some(enc) = Encoding::from_channel(&c.message_encoding) else {
-            let why = format!(
-                "message encoding \"{}\" (schema {} \"{}\") is not supported; tessera reads \"ros1\" and \"cdr\" (ROS 2)",
-                c.message_encoding, c.schema_encoding, c.schema_name
-            );
-            return self.unusable(
-                c,
-                m.log_time,
-                None,
-                Unusable("unsupported encoding", why),
-                rep,
-            );
-        };
-        let cloud = match pointcloud2::decode(m.data, enc) {
-            Ok(cl) => cl,
-            Err(e) => {
-                return self.unusable(
-                    c,
-                    m.log_time,
-                    None,
-                    Unusable("undecodable", format!("cannot decode PointCloud2: {e}")),
-                    rep,
-                )
-            }
-        };
-        rep.points_in_clouds += cloud.len() as u64;
-        let stamp = cloud.stamp;
-        match self.place(&cloud, c, rep) {
-            Ok(()) => Ok(()),
-            Err(PlaceError::Unusable(u)) => self.unusable(c, m.log_time, Some(stamp), u, rep),
-            Err(PlaceError::Fatal(e)) => Err(e),
-        }
-    }
-
-    fn unusable(
-        &mut self,
-        c: &ChannelInfo,
-        log_time: u64,
-        stamp: Option<Stamp>,
-        u: Unusable,
-        rep: &mut McapReport,
-    ) -> Result<()> {
-        let at = match stamp {
-            Some(s) => format!("cloud stamped {s} (log time {})", fmt_ns(log_time)),
-            None => format!("message at log time {}", fmt_ns(log_time)),
-        };
-        let why = format!("topic {}, {at}: {}", c.topic, u.1);
-        if self.p.on_error == OnError::Fail {
-            return Err(Error::bad_input(
-                self.src.path(),
-                format!("{why} (set mcap.on_error = \"skip\" to skip such clouds)"),
-            ));
-        }
-        *rep.clouds_skipped.entry(u.0.to_string()).or_default() += 1;
-        note(rep, why);
-        Ok(())
-    }
-
-    fn place(
-        &mut self,
-        cloud: &pointcloud2::PointCloud2,
-        c: &ChannelInfo,
-        rep: &mut McapReport,
-    ) -> std::result::Result<(), PlaceError> {
-        let p = self.p;
-        if self.schema.is_none() {
-            let s = CloudSchema::from_cloud(cloud, p).map_err(|e| {
-                PlaceError::Fatal(Error::bad_input(
-                    self.src.path(),
-                    format!("topic {}, cloud stamped {}: {e}", c.topic, cloud.stamp),
-                ))
-            })?;
-            rep.time_field = s.time_field.clone();
-            rep.extra_fields = s.extras.iter().map(|e| e.name.clone()).collect();
-            self.schema = Some(s);
-        }
-        let Some(schema) = self.schema.as_ref() else {
-            return Ok(());
-        };
-        let b: Bound = schema
-            .bind(cloud, p.time_unit_s)
-            .map_err(|e| PlaceError::Unusable(Unusable("layout", e)))?;
-        for n in &b.missing {
-            *rep.missing_fields.entry(n.clone()).or_default() += 1;
-        }
-        let frame = super::tf::normalise(cloud.frame_id).to_string();
-        let chain = self
-            .chains
-            .entry(frame.clone())
-            .or_insert_with(|| {
-                self.tf
-                    .chain(&p.target_frame, &frame)
-                    .map_err(|e| e.to_string())
-            })
-            .clone()
-            .map_err(|e| PlaceError::Unusable(Unusable("no transform chain", e)))?;
-        let stamp_ns = cloud.stamp.as_nanos();
-        let pose_err =
-            |e: super::tf::PoseError| PlaceError::Unusable(Unusable("missing pose", e.to_string()));
-        let cloud_pose: Iso = self
-            .tf
-            .eval(&chain, stamp_ns, &self.lim)
-            .map_err(pose_err)?;
-        let deskew = p.deskew && b.time.is_some() && !chain.is_static;
-        let min_r2 = p.min_range_m * p.min_range_m;
-        let [ax, ay, az] = b.xyz;
-        self.xyz.clear();
-        self.attrs.clear();
-        self.extras.clear();
-        let mut time_map: Option<TimeMap> = None;
-        self.pose_cache.clear();
-        let mut last_t = i128::MIN;
-        let mut pose = cloud_pose;
-        let (mut nan, mut near) = (0u64, 0u64);
-        let off = p.world_offset;
-        for i in 0..cloud.len() {
-            let pt = cloud.point(i);
-            let (x, y, z) = (ax.get(pt), ay.get(pt), az.get(pt));
-            if !(x.is_finite() && y.is_finite() && z.is_finite()) {
-                nan += 1;
-                continue;
-            }
-            if x * x + y * y + z * z < min_r2 {
-                near += 1;
-                continue;
-            }
-            let t_ns = match &b.time {
-                Some((a, unit)) => {
-                    let v = a.get(pt);
-                    let tm = *time_map
-                        .get_or_insert_with(|| TimeMap::detect(a, *unit, p.time_unit_s == 0.0, v));
-                    if !v.is_finite() {
-                        stamp_ns
-                    } else {
-                        tm.to_ns(v, stamp_ns)
-                    }
-                }
-                None => stamp_ns,
-            };
-            if deskew && t_ns != last_t {
-                // Organised clouds repeat each firing time once per ring: evaluate the chain
-                // once per distinct time.
-                pose = match self.pose_cache.get(&t_ns) {
-                    Some(p) => *p,
-                    None => {
-                        let p = self.tf.eval(&chain, t_ns, &self.lim).map_err(|e| {
-                            PlaceError::Unusable(Unusable(
-                                "missing pose",
-                                format!("point {i} (per-point time): {e}"),
-                            ))
-                        })?;
-                        if self.pose_cache.len() < 1 << 16 {
-                            self.pose_cache.insert(t_ns, p);
-                        }
-                        p
-                    }
-                };
-                last_t = t_ns;
-            }
-            let w = pose * Point3::new(x, y, z);
-            self.xyz.push([w.x + off[0], w.y + off[1], w.z + off[2]]);
-            let inten = b
-                .intensity
-                .map(|a| a.get(pt).round().clamp(0.0, 65535.0) as u16)
-                .unwrap_or(0);
-            let rgb = b.rgb.map(|a| unpack_rgb(a.bits32(pt))).unwrap_or([0; 3]);
-            let gps = (t_ns - UNIX_TO_ADJUSTED_GPS_S * 1_000_000_000) as f64 * 1e-9;
-            self.attrs.push((gps, inten, rgb));
-            for (e, spec) in b.extras.iter().zip(&schema.extras) {
-                match e {
-                    Some(a) => a.push_le(pt, &mut self.extras),
-                    None => self.extras.extend(std::iter::repeat_n(0u8, spec.size)),
-                }
-            }
-        }
-        rep.points_nan += nan;
-        rep.points_near += near;
-        if deskew {
-            rep.clouds_deskewed += 1;
-        }
-        self.write_cloud(&c.topic).map_err(PlaceError::Fatal)?;
-        rep.clouds_used += 1;
-        rep.points_written += self.xyz.len() as u64;
-        Ok(())
-    }
-
-    fn write_cloud(&mut self, topic: &str) -> Result<()> {
-        if self.xyz.is_empty() {
-            return Ok(());
-        }
-        let Some(schema) = self.schema.as_ref() else {
-            return Ok(());
-        };
-        if self.writer.is_none() {
-            // Offsets on a 1 km grid near the first point keep every coordinate of a drive
-            // well inside the ±2^31 × scale an i32 record can hold.
-            let first = self.xyz[0];
-            let t = |v: f64, s: f64| Transform {
-                scale: s,
-                offset: (v / 1000.0).round() * 1000.0,
-            };
-            let transforms = Vector {
-                x: t(first[0], self.p.scale_m),
-                y: t(first[1], self.p.scale_m),
-                z: Transform {
-                    scale: self.p.scale_m,
-                    offset: 0.0,
-                },
-            };
-            let header = las_header(schema, transforms, self.p, self.src.path())?;
-            let stem = self
-                .src
-                .path()
-                .file_stem()
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_else(|| "drive".into());
-            let mut format = schema.format();
-            format.is_compressed = false;
-            self.writer = Some(PartWriter {
-                dir: self.work_dir.to_path_buf(),
-                stem,
-                header,
-                writer: None,
-                current: None,
-                in_part: 0,
-                part_points: self.p.part_points,
-                parts: Vec::new(),
-                buf: Vec::new(),
-                format,
-                transforms,
-            });
-        }
-        let Some(w) = self.writer.as_mut() else {
-            return Ok(());
-        };
-        let tr = w.transforms;
-        let psid = self.topic_index.get(topic).copied().unwrap_or(0);
-        let rgb = schema.rgb_field.is_some();
-        let eb = schema.extra_bytes();
-        self.records.clear();
-        for (i, (p, (gps, inten, col))) in self.xyz.iter().zip(&self.attrs).enumerate() {
-            let q = |v: f64, t: &Transform, axis: &str| -> Result<i32> {
-                let r = ((v - t.offset) / t.scale).round();
-                if r.abs() < 2_147_483_647.0 {
-                    Ok(r as i32)
-                } else {
-                    Err(Error::bad_input(
-                        self.src.path(),
-                        format!(
-                            "topic {topic}: {axis} = {v} is too far from the first point for LAS coordinates at scale {} (check the poses, or raise mcap.scale_m)",
-                            t.scale
-                        ),
-                    ))
-                }
-            };
-            let r = &mut self.records;
-            r.extend(q(p[0], &tr.x, "x")?.to_le_bytes());
-            r.extend(q(p[1], &tr.y, "y")?.to_le_bytes());
-            r.extend(q(p[2], &tr.z, "z")?.to_le_bytes());
-            r.extend(inten.to_le_bytes());
-            r.push(0x11); // return 1 of 1
-            r.push(0); // classification flags, scanner channel, scan direction, edge
-            r.push(0); // classification: never classified
-            r.push(0); // user data
-            r.extend(0i16.to_le_bytes()); // scan angle
-            r.extend(psid.to_le_bytes()); // point source id: the topic's index
-            r.extend(gps.to_le_bytes());
-            if rgb {
-                for ch in col {
-                    r.extend(ch.to_le_bytes());
-                }
-            }
-            r.extend_from_slice(&self.extras[i * eb..(i + 1) * eb]);
-        }
-        let n = self.xyz.len() as u64;
-        w.write(&self.records, n)?;
-        w.maybe_roll()
-    }
-}
-
-enum PlaceError {
-    Unusable(Unusable),
-    Fatal(Error),
-}
-
 /// Converts one recording into LAS parts in `work_dir` (created if needed).
 pub fn convert_file(path: &Path, work_dir: &Path, p: &McapParams) -> Result<Conversion> {
     let t0 = Instant::now();
@@ -735,22 +257,6 @@ pub fn convert_file(path: &Path, work_dir: &Path, p: &McapParams) -> Result<Conv
     };
     let mut all_topics: Vec<(String, String)> = Vec::new();
     let mut selected: Vec<String> = Vec::new();
-    let mut pass = CloudPass {
-        src: &src,
-        p,
-        tf: &tf,
-        lim,
-        schema: None,
-        chains: HashMap::new(),
-        writer: None,
-        work_dir,
-        topic_index: HashMap::new(),
-        pose_cache: HashMap::new(),
-        xyz: Vec::new(),
-        attrs: Vec::new(),
-        extras: Vec::new(),
-        records: Vec::new(),
-    };
     let mut want = |c: &ChannelInfo| {
         all_topics.push((c.topic.clone(), c.schema_name.clone()));
         let take = if p.cloud_topics.is_empty() {
@@ -763,29 +269,10 @@ pub fn convert_file(path: &Path, work_dir: &Path, p: &McapParams) -> Result<Conv
         }
         take
     };
-    let mut on_message = |m: MessageRef| -> Result<()> {
-        if !message_type_ok(m.channel, &["sensor_msgs/PointCloud2"]) {
-            return Err(Error::Config(format!(
-                "{}: mcap.cloud_topics names {}, which carries \"{}\", not sensor_msgs/PointCloud2",
-                path.display(),
-                m.channel.topic,
-                m.channel.schema_name
-            )));
-        }
-        let n = pass.topic_index.len() as u16;
-        pass.topic_index.entry(m.channel.topic.clone()).or_insert(n);
-        pass.cloud(m, &mut rep)
-    };
-    let out = src.scan(&mut want, &mut on_message, p.on_error == OnError::Fail)?;
+    let (out, parts) =
+        super::clouds::place_clouds(&src, p, &tf, lim, work_dir, &mut rep, &mut want)?;
     rep.indexed = out.indexed;
     handle_damage(&src, p, &mut rep, &out.damage, "reading clouds")?;
-    let parts = match pass.writer.as_mut() {
-        Some(w) => {
-            w.close_part()?;
-            std::mem::take(&mut w.parts)
-        }
-        None => Vec::new(),
-    };
     selected.sort();
     rep.topics = selected.clone();
     rep.parts = parts.len();

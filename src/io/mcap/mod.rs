@@ -19,12 +19,18 @@
 //! Modules: [`wire`] (ROS 1 / CDR primitives), [`pointcloud2`] (the cloud message and field
 //! access), [`tf`] (pose messages, transform tree, interpolation), [`trajectory`] (CSV poses),
 //! [`reader`] (memory-mapped, chunk-streaming MCAP access), [`fields`] (which cloud fields go
-//! where in LAS), [`convert`] (the two passes and LAS writing), [`info`] (`tessera info`).
+//! where in LAS), [`convert`] (the two passes, the report, staging the inputs of a run),
+//! [`clouds`] (pass 2: parallel placing, ordered writing), [`place`] (one cloud into the
+//! world), [`parts`] (LAS parts), [`encode`] (CDR writing for the simulated drive), [`info`]
+//! (`tessera info`).
 
+pub mod clouds;
 pub mod convert;
 pub mod encode;
 pub mod fields;
 pub mod info;
+pub mod parts;
+pub mod place;
 pub mod pointcloud2;
 pub mod reader;
 pub mod tf;
