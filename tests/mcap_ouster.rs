@@ -185,3 +185,27 @@ fn ouster_through_the_whole_pipeline() {
         s.points_out, s.tiles
     );
 }
+
+#[test]
+fn info_lists_topics_counts_time_span_and_points() {
+    let Some(path) = data_file(FILE) else { return };
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_tessera"))
+        .arg("info")
+        .arg(&path)
+        .output()
+        .unwrap();
+    assert!(o.status.success());
+    let t = String::from_utf8_lossy(&o.stdout);
+    for want in [
+        "profile \"ros1\"",
+        "summary: 2 indexed chunks",
+        "time span: 1592833242.605385634 s .. 1592833242.788158073 s (0.183 s)",
+        "messages: 273 on 11 topics; PointCloud2 points: 262144 (262144 valid)",
+        "topic /os1_cloud_node/points: sensor_msgs/PointCloud2 [ros1], 2 messages",
+        "topic /os1_node/lidar_packets: ouster_ros/PacketMsg [ros1], 206 messages",
+        "64 × 2048 (organised), frame \"os1_lidar\", point_step 48",
+        "ring:UINT8@26",
+    ] {
+        assert!(t.contains(want), "missing \"{want}\" in:\n{t}");
+    }
+}

@@ -161,3 +161,53 @@ fn indexed_summary_less_and_unchunked_files_convert_identically() {
     assert_eq!(n, 41);
     assert!(o.chunks_skipped >= 5, "{o:?}");
 }
+
+#[test]
+fn world_offset_and_crs_note_reach_the_las_parts() {
+    let tmp = tempfile::tempdir().unwrap();
+    let path = tmp.path().join("drive.mcap");
+    write(
+        &path,
+        mcap::WriteOptions::new().compression(Some(mcap::Compression::Zstd)),
+    );
+    let conv = |sets: &[&str], name: &str| {
+        let c = convert_file(&path, &tmp.path().join(name), &params(sets)).unwrap();
+        let r = las::Reader::from_path(&c.parts[0]).unwrap();
+        let vlrs: Vec<(String, u16, Vec<u8>)> = r
+            .header()
+            .vlrs()
+            .iter()
+            .map(|v| (v.user_id.clone(), v.record_id, v.data.clone()))
+            .collect();
+        (read_parts(&c.parts).0, vlrs, c.report)
+    };
+    let (a, _, _) = conv(&["mcap.scale_m=0.0001"], "a");
+    let (b, vlrs, rep) = conv(
+        &[
+            "mcap.scale_m=0.0001",
+            "mcap.world_offset=[120000.5, 485000.25, -3.0]",
+            "mcap.crs=\"EPSG:28992+5709\"",
+        ],
+        "b",
+    );
+    assert_eq!(rep.crs, "EPSG:28992+5709");
+    for (p, q) in a.iter().zip(&b) {
+        for (k, off) in [120000.5, 485000.25, -3.0].iter().enumerate() {
+            assert!(
+                (q.xyz[k] - p.xyz[k] - off).abs() < 2e-4,
+                "{:?} {:?}",
+                p.xyz,
+                q.xyz
+            );
+        }
+    }
+    assert!(vlrs
+        .iter()
+        .any(|(u, id, d)| u == "tessera" && *id == 1 && d == b"EPSG:28992+5709"));
+    let wkt = "PROJCS[\"Amersfoort / RD New\",GEOGCS[\"Amersfoort\"]]";
+    let (_, vlrs, _) = conv(&[&format!("mcap.crs='{wkt}'")], "c");
+    let want: Vec<u8> = wkt.bytes().chain([0]).collect();
+    assert!(vlrs
+        .iter()
+        .any(|(u, id, d)| u == "LASF_Projection" && *id == 2112 && *d == want));
+}
