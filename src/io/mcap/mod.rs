@@ -21,7 +21,7 @@
 //! [`reader`] (memory-mapped, chunk-streaming MCAP access), [`fields`] (which cloud fields go
 //! where in LAS), [`convert`] (the two passes, the report, staging the inputs of a run),
 //! [`clouds`] (pass 2: parallel placing, ordered writing), [`place`] (one cloud into the
-//! world), [`parts`] (LAS parts), [`encode`] (CDR writing for the simulated drive), [`info`]
+//! world), [`parts`] (LAS parts), [`encode`] (CDR writing for the simulated drive), [`mod@info`]
 //! (`tessera info`).
 
 pub mod clouds;

@@ -296,6 +296,7 @@ impl McapSource {
         let (mut r, mut pos) = (0usize, ranges.first().map(|x| x.0).unwrap_or(0));
         let mut released = pos;
         let mut past_data_end = false;
+        let mut at_eof = false;
         let release = |from: usize, to: usize| {
             if to > from {
                 crate::sys::release_mapped(&self.map, from, to - from);
@@ -322,10 +323,11 @@ impl McapSource {
                         }
                     }
                     if r == ranges.len() {
-                        if chunks_only {
-                            return Ok(r); // every wanted chunk read
+                        if chunks_only || at_eof {
+                            return Ok(r); // every wanted chunk read, or the file has ended
                         }
                         reader.notify_read(0); // end of file: the reader checks it ends well
+                        at_eof = true;
                         continue;
                     }
                     let n = need.min(FEED_MAX).min(ranges[r].1 - pos);

@@ -4,7 +4,7 @@
 //! relative to the end of that header, strings carrying their NUL terminator).
 //!
 //! One reader serves both so the message decoders are written once; the differences live in
-//! [`WireReader::align`], [`WireReader::string`] and [`WireReader::time`].
+//! alignment, [`WireReader::string`] and [`WireReader::time`].
 
 use std::fmt;
 
