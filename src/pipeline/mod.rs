@@ -107,6 +107,7 @@ pub fn run_with_stages(
         inputs,
         &crate::io::mcap::convert::work_dir(out_dir, &cfg.pipeline.spill_dir),
         &cfg.mcap,
+        cfg.pipeline.threads,
     )?;
     let set = scan_inputs(&staged.paths, cfg.output_point_format()?)?;
     let scan_s = t0.elapsed().as_secs_f64();

@@ -57,14 +57,18 @@ pub(crate) fn place_clouds(
     tf: &TfTree,
     lim: Limits,
     work_dir: &Path,
+    threads: usize,
     rep: &mut McapReport,
     want: &mut dyn FnMut(&ChannelInfo) -> bool,
 ) -> Result<(ScanOutcome, Vec<PathBuf>)> {
     let path = src.path();
-    let workers = std::thread::available_parallelism()
-        .map(|n| n.get())
-        .unwrap_or(1)
-        .clamp(1, 8);
+    let workers = match threads {
+        0 => std::thread::available_parallelism()
+            .map(|n| n.get())
+            .unwrap_or(1),
+        n => n,
+    }
+    .clamp(1, 8);
     let schema: OnceLock<CloudSchema> = OnceLock::new();
     let failure: Mutex<Option<Error>> = Mutex::new(None);
     let failed = AtomicBool::new(false);
@@ -73,11 +77,13 @@ pub(crate) fn place_clouds(
         g.get_or_insert(e);
         failed.store(true, Ordering::SeqCst);
     };
-    let (job_tx, job_rx) = bounded::<Job>(2 * workers);
-    let (done_tx, done_rx) = bounded::<Done>(2 * workers);
-    let pool = 2 * workers + 2;
+    // In flight: one output buffer per worker plus one the writer may hold, and a message per
+    // worker waiting in the queue.
+    let (job_tx, job_rx) = bounded::<Job>(workers);
+    let (done_tx, done_rx) = bounded::<Done>(workers);
+    let pool = workers + 1;
     let (free_out_tx, free_out_rx) = bounded::<Placed>(pool);
-    let (free_in_tx, free_in_rx) = bounded::<Vec<u8>>(pool + 2 * workers);
+    let (free_in_tx, free_in_rx) = bounded::<Vec<u8>>(2 * workers + 1);
     for _ in 0..pool {
         let _ = free_out_tx.send(Placed::default());
     }

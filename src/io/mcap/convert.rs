@@ -231,8 +231,19 @@ fn handle_damage(
     Ok(())
 }
 
-/// Converts one recording into LAS parts in `work_dir` (created if needed).
+/// Converts one recording into LAS parts in `work_dir` (created if needed), placing clouds on
+/// every core.
 pub fn convert_file(path: &Path, work_dir: &Path, p: &McapParams) -> Result<Conversion> {
+    convert_file_with(path, work_dir, p, 0)
+}
+
+/// [`convert_file`] with `threads` workers placing clouds (0 = one per core).
+pub fn convert_file_with(
+    path: &Path,
+    work_dir: &Path,
+    p: &McapParams,
+    threads: usize,
+) -> Result<Conversion> {
     let t0 = Instant::now();
     p.validate()?;
     let src = McapSource::open(path)?;
@@ -270,7 +281,7 @@ pub fn convert_file(path: &Path, work_dir: &Path, p: &McapParams) -> Result<Conv
         take
     };
     let (out, parts) =
-        super::clouds::place_clouds(&src, p, &tf, lim, work_dir, &mut rep, &mut want)?;
+        super::clouds::place_clouds(&src, p, &tf, lim, work_dir, threads, &mut rep, &mut want)?;
     rep.indexed = out.indexed;
     handle_damage(&src, p, &mut rep, &out.damage, "reading clouds")?;
     selected.sort();
@@ -353,8 +364,14 @@ impl Drop for StagedInputs {
     }
 }
 
-/// Expands `inputs` and converts every MCAP among them into LAS parts under `work_dir`.
-pub fn stage_inputs(inputs: &[PathBuf], work_dir: &Path, p: &McapParams) -> Result<StagedInputs> {
+/// Expands `inputs` and converts every MCAP among them into LAS parts under `work_dir`, with
+/// `threads` workers (0 = one per core).
+pub fn stage_inputs(
+    inputs: &[PathBuf],
+    work_dir: &Path,
+    p: &McapParams,
+    threads: usize,
+) -> Result<StagedInputs> {
     let paths = expand_paths(inputs)?;
     if !paths.iter().any(|f| is_mcap(f)) {
         return Ok(StagedInputs {
@@ -373,7 +390,7 @@ pub fn stage_inputs(inputs: &[PathBuf], work_dir: &Path, p: &McapParams) -> Resu
     };
     for (i, f) in paths.iter().enumerate() {
         if is_mcap(f) {
-            let conv = convert_file(f, &work_dir.join(format!("{i:05}")), p)?;
+            let conv = convert_file_with(f, &work_dir.join(format!("{i:05}")), p, threads)?;
             staged.paths.extend(conv.parts);
             staged.reports.push(conv.report);
         } else {

@@ -37,7 +37,9 @@ pub mod tf;
 pub mod trajectory;
 pub mod wire;
 
-pub use convert::{convert_file, stage_inputs, Conversion, McapReport, StagedInputs};
+pub use convert::{
+    convert_file, convert_file_with, stage_inputs, Conversion, McapReport, StagedInputs,
+};
 pub use info::{info, McapInfo};
 pub use reader::McapSource;
 
