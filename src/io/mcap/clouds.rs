@@ -54,8 +54,7 @@ fn encoding_note(c: &ChannelInfo) -> String {
 pub(crate) fn place_clouds(
     src: &McapSource,
     p: &McapParams,
-    tf: &TfTree,
-    lim: Limits,
+    (tf, lim): (&TfTree, Limits),
     work_dir: &Path,
     threads: usize,
     rep: &mut McapReport,

@@ -281,7 +281,7 @@ pub fn convert_file_with(
         take
     };
     let (out, parts) =
-        super::clouds::place_clouds(&src, p, &tf, lim, work_dir, threads, &mut rep, &mut want)?;
+        super::clouds::place_clouds(&src, p, (&tf, lim), work_dir, threads, &mut rep, &mut want)?;
     rep.indexed = out.indexed;
     handle_damage(&src, p, &mut rep, &out.damage, "reading clouds")?;
     selected.sort();
