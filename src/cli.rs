@@ -53,7 +53,7 @@ impl RunOpts {
 /// Subcommands.
 #[derive(Debug, Subcommand)]
 pub enum Command {
-    /// Process LAS/LAZ files (or directories of them) into labelled tiles.
+    /// Process LAS/LAZ files and MCAP drives (or directories of them) into labelled tiles.
     Run {
         /// Input files or directories.
         #[arg(required = true)]
@@ -88,6 +88,16 @@ pub enum Command {
         /// Number of houses (buildings scene).
         #[arg(long, default_value_t = 4)]
         houses: usize,
+        /// Write the street as a drive recording instead: a simulated spinning LiDAR, as ROS 2
+        /// MCAP (PointCloud2 + /tf), with truth fields per point (`drive.mcap`).
+        #[arg(long)]
+        mcap: bool,
+        /// Beams of the simulated LiDAR (--mcap).
+        #[arg(long, default_value_t = 32)]
+        rings: u32,
+        /// Firings per revolution of the simulated LiDAR (--mcap).
+        #[arg(long, default_value_t = 1024)]
+        columns: u32,
     },
     /// Density reduction by minimum point spacing (Sapkota §5.3), streaming: a point is kept
     /// unless a kept point lies within the spacing.
@@ -147,7 +157,8 @@ pub enum Command {
         #[command(subcommand)]
         what: EvalCommand,
     },
-    /// Print facts about a LAS/LAZ file.
+    /// Print facts about a LAS/LAZ file (header) or an MCAP recording (topics, message
+    /// counts, time span, point counts).
     Info {
         /// The file.
         file: PathBuf,

@@ -80,6 +80,8 @@ pub struct Config {
     /// `[label]`
     #[serde(default)]
     pub label: crate::pipeline::label_stage::LabelSection,
+    /// `[mcap]`
+    pub mcap: crate::io::mcap::McapParams,
 }
 
 impl Config {
@@ -169,6 +171,7 @@ impl Config {
             .params
             .validate()
             .map_err(|e| Error::Config(format!("ground.params: {e}")))?;
+        self.mcap.validate()?;
         if self.stages.run.is_empty() {
             return Err(Error::Config(
                 "stages.run must name at least one stage".into(),

@@ -133,7 +133,31 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             file_length_m,
             scene,
             houses,
+            mcap,
+            rings,
+            columns,
         } => {
+            if mcap {
+                let p = tessera::synth::lidar::LidarParams {
+                    scene: tessera::synth::SceneParams {
+                        seed,
+                        length_m,
+                        ..Default::default()
+                    },
+                    rings,
+                    columns,
+                    ..Default::default()
+                };
+                let s = tessera::synth::drive::write_drive(&p, &out)?;
+                tracing::info!(
+                    "wrote {} clouds ({} returns of {} beams) to {}",
+                    s.clouds,
+                    s.points,
+                    s.beams,
+                    out.join("drive.mcap").display()
+                );
+                return Ok(());
+            }
             if scene == SceneKind::Buildings {
                 let mut p = tessera::synth::buildings::BuildingParams {
                     seed,
@@ -454,6 +478,10 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             }
         },
         Command::Info { file } => {
+            if tessera::io::mcap::is_mcap(&file) {
+                print!("{}", tessera::io::mcap::info(&file)?.to_text());
+                return Ok(());
+            }
             let f = tessera::io::input::scan_file(&file, 0)?;
             let h = &f.header;
             let b = h.bounds();

@@ -44,11 +44,11 @@ fn is_point_file(p: &Path) -> bool {
             .and_then(|e| e.to_str())
             .map(|e| e.to_ascii_lowercase())
             .as_deref(),
-        Some("las") | Some("laz")
+        Some("las") | Some("laz") | Some("mcap")
     )
 }
 
-/// Expands directories (recursively, `*.las`/`*.laz`) and sorts the list.
+/// Expands directories (recursively, `*.las`/`*.laz`/`*.mcap`) and sorts the list.
 pub fn expand_paths(inputs: &[PathBuf]) -> Result<Vec<PathBuf>> {
     let mut out = Vec::new();
     for p in inputs {
@@ -73,7 +73,7 @@ pub fn expand_paths(inputs: &[PathBuf]) -> Result<Vec<PathBuf>> {
     out.sort();
     out.dedup();
     if out.is_empty() {
-        return Err(Error::Config("no LAS/LAZ input files given".into()));
+        return Err(Error::Config("no LAS/LAZ/MCAP input files given".into()));
     }
     Ok(out)
 }
@@ -92,6 +92,12 @@ fn sniff(path: &Path) -> Result<u64> {
         return Err(Error::bad_input(
             path,
             "this is a Git LFS pointer file, not point data (fetch the real file with `git lfs pull`)",
+        ));
+    }
+    if head[..n].starts_with(crate::io::mcap::MAGIC) {
+        return Err(Error::bad_input(
+            path,
+            "this is an MCAP recording, not a LAS/LAZ file (`tessera run` decodes it into points; `tessera info` describes it)",
         ));
     }
     if n < 4 || &head[..4] != b"LASF" {

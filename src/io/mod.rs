@@ -1,7 +1,9 @@
-//! Input and output: LAS/LAZ scanning and validation, chunked reading, atomic tile writing.
+//! Input and output: LAS/LAZ scanning and validation, chunked reading, atomic tile writing,
+//! and MCAP drive recordings (decoded and georeferenced into LAS parts, [`mcap`]).
 
 pub mod extra;
 pub mod input;
+pub mod mcap;
 pub mod output;
 pub mod pcd;
 

@@ -102,8 +102,16 @@ pub fn run_with_stages(
     progress: ProgressFn,
 ) -> Result<Summary> {
     let t0 = Instant::now();
+    // MCAP drives are decoded and georeferenced first, into LAS parts whose headers carry the
+    // exact bounds the tiler needs; the parts are removed when `staged` is dropped.
+    let staged = crate::io::mcap::stage_inputs(
+        inputs,
+        &crate::io::mcap::convert::work_dir(out_dir, &cfg.pipeline.spill_dir),
+        &cfg.mcap,
+        cfg.pipeline.threads,
+    )?;
     let requested = cfg.output_point_format()?;
-    let mut set = scan_inputs(inputs, requested)?;
+    let mut set = scan_inputs(&staged.paths, requested)?;
     let max_code = stages.iter().map(|s| s.max_class_code()).max().unwrap_or(0);
     if requested.is_none() && max_code > 31 && !set.layout.format.is_extended {
         // Legacy formats hold class codes up to 31; write the LAS 1.4 format with the same
@@ -119,7 +127,7 @@ pub fn run_with_stages(
             "stages write class codes up to {max_code}: output point format {} -> {up}",
             f.to_u8().unwrap_or(255)
         );
-        set = scan_inputs(inputs, Some(up))?;
+        set = scan_inputs(&staged.paths, Some(up))?;
     }
     let scan_s = t0.elapsed().as_secs_f64();
     let workers = if cfg.pipeline.threads == 0 {
@@ -176,6 +184,7 @@ pub fn run_with_stages(
         .insert("total".into(), t0.elapsed().as_secs_f64());
     summary.version = env!("CARGO_PKG_VERSION").into();
     summary.inputs = set.files.len();
+    summary.mcap = staged.reports.clone();
     summary.points_in = set.total_points;
     summary.memory_budget_mb = cfg.pipeline.memory_budget_mb;
     summary.point_format = set.layout.format.to_u8().unwrap_or(255);

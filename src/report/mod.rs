@@ -60,4 +60,7 @@ pub struct Summary {
     pub point_format: u8,
     /// Written tiles, in write order.
     pub tile_list: Vec<TileSummary>,
+    /// MCAP inputs: decoding, georeferencing, skipped clouds and dropped points.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub mcap: Vec<crate::io::mcap::McapReport>,
 }

@@ -6,6 +6,8 @@
 //! 10^8+ points are written with memory bounded by a few slabs.
 
 pub mod buildings;
+pub mod drive;
+pub mod lidar;
 pub mod scene;
 
 pub use scene::{generate_slab, segments, SceneParams, SegmentTruth, SynthPoint};

@@ -112,8 +112,8 @@ pub struct SegmentTruth {
     pub x_max: f64,
 }
 
-mod layout;
-mod sample;
+pub(crate) mod layout;
+pub(crate) mod sample;
 #[cfg(test)]
 mod tests;
 
