@@ -77,6 +77,8 @@ pub struct Config {
     pub ground: GroundSection,
     /// `[segment]`
     pub segment: crate::pipeline::segment_stage::SegmentSection,
+    /// `[stitch]`
+    pub stitch: crate::stitch::StitchParams,
 }
 
 impl Config {
@@ -166,6 +168,7 @@ impl Config {
             .params
             .validate()
             .map_err(|e| Error::Config(format!("ground.params: {e}")))?;
+        self.stitch.validate().map_err(Error::Config)?;
         if self.stages.run.is_empty() {
             return Err(Error::Config(
                 "stages.run must name at least one stage".into(),

@@ -132,7 +132,9 @@ fn density_reduction_report() {
     let tmp = tempfile::tempdir().unwrap();
     tessera::synth::write_buildings(&BuildingParams::default(), &tmp.path().join("in")).unwrap();
     let input = tmp.path().join("in/buildings.laz");
-    println!("spacing_m\tpoints\tr_seed_m\tr_grow_m\tcorrect\tover\tunder\tmissed\tnoise\treference");
+    println!(
+        "spacing_m\tpoints\tr_seed_m\tr_grow_m\tcorrect\tover\tunder\tmissed\tnoise\treference"
+    );
     for spacing in [0.0, 0.07, 0.10] {
         let (src, points) = if spacing == 0.0 {
             (input.clone(), 0)

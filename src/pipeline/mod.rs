@@ -10,6 +10,7 @@
 //! the tiles in memory at once are bounded by the worker count.
 
 pub mod budget;
+mod collect;
 pub mod ground_stage;
 pub mod segment_stage;
 pub mod stage;
@@ -17,11 +18,13 @@ pub mod stage;
 use crate::config::Config;
 use crate::error::{Error, Result};
 use crate::io::input::read_file_chunks;
-use crate::io::output::{segment_table_tsv, TileSegments};
-use crate::io::{scan_inputs, write_atomic, InputSet, PendingTile, TileWriter};
-use crate::report::{peak_rss_mb, Summary, TileSummary};
+use crate::io::output::{segment_table_tsv, SegmentIdType, TileSegments};
+use crate::io::{scan_inputs, write_atomic, InputSet, TileWriter};
+use crate::report::{peak_rss_mb, Summary};
+use crate::stitch::BorderSummary;
 use crate::tiling::{load_tile, schedule, split_job, Grid, TileJob, Tiler};
 use budget::BudgetPlan;
+use collect::{Collector, Processed, TileMeta, TileOutput, ToWriter};
 use crossbeam_channel::{bounded, Receiver, Sender};
 pub use stage::{build_stages, Stage, StatsStage, TileReport};
 use std::path::{Path, PathBuf};
@@ -41,16 +44,6 @@ enum ReadMsg {
     FileDone(usize),
 }
 
-/// A processed tile, compressed by its worker and waiting to be committed by the writer.
-struct Processed {
-    name: String,
-    pending: PendingTile,
-    n_core: u64,
-    buffer_points: u64,
-    report: TileReport,
-    split_root: Option<String>,
-}
-
 /// Everything the pipeline threads share for one run.
 struct RunCtx<'a> {
     set: &'a InputSet,
@@ -60,6 +53,27 @@ struct RunCtx<'a> {
     plan: &'a BudgetPlan,
     stages: &'a [Box<dyn Stage>],
     writer: &'a TileWriter,
+    /// Stitching: the overlap strip width and each input's first point ordinal.
+    stitch: Option<StitchCtx>,
+}
+
+/// What workers need to summarise tiles for stitching.
+struct StitchCtx {
+    strip_m: f64,
+    /// Ordinal of the first point of each input file (prefix sums in input order).
+    first_ordinal: Vec<u64>,
+}
+
+impl StitchCtx {
+    /// Position of a point in the run's inputs: dense, deterministic, unique.
+    fn ordinal(&self, pid: u64) -> u64 {
+        let file = (pid >> 40) as usize;
+        self.first_ordinal
+            .get(file)
+            .copied()
+            .unwrap_or(u64::MAX >> 1)
+            + (pid & ((1 << 40) - 1))
+    }
 }
 
 /// Shared failure state: the first error wins; everyone else stops quietly.
@@ -113,7 +127,12 @@ pub fn run_with_stages(
     // Stages run one after the other on a tile and free their working memory before the next
     // starts, so the largest one counts, plus 8 B a point for results carried between stages
     // (segment labels).
-    let stage_bpp: usize = stages.iter().map(|s| s.bytes_per_point()).max().unwrap_or(0) + 8;
+    let stage_bpp: usize = stages
+        .iter()
+        .map(|s| s.bytes_per_point())
+        .max()
+        .unwrap_or(0)
+        + 8;
     let plan = BudgetPlan::new(
         cfg.pipeline.memory_budget_mb,
         set.layout.record_len,
@@ -130,11 +149,30 @@ pub fn run_with_stages(
     let _ = std::fs::remove_dir_all(&spill_dir);
     std::fs::create_dir_all(&spill_dir).map_err(|e| Error::io(&spill_dir, e))?;
     let segments = stages.iter().any(|s| s.name() == "segment");
+    // Stitching needs the segment stage (whose buffer strip is the overlap the tiles are
+    // matched in). Global ids are point ordinals + 1: u32 while the run has fewer points.
+    let stitch = (segments && cfg.stitch.enabled).then(|| {
+        let mut first_ordinal = Vec::with_capacity(set.files.len());
+        let mut acc = 0u64;
+        for f in &set.files {
+            first_ordinal.push(acc);
+            acc += f.points;
+        }
+        StitchCtx {
+            strip_m: cfg.segment.buffer_m.min(cfg.tiling.buffer_m),
+            first_ordinal,
+        }
+    });
+    let id_type = if stitch.is_some() && set.total_points >= u32::MAX as u64 {
+        SegmentIdType::U64
+    } else {
+        SegmentIdType::U32
+    };
     let writer = TileWriter::new(
         &set.template,
         &set.layout,
         cfg.output.format == "laz",
-        segments,
+        segments.then_some(id_type),
     )?;
     let ctx = RunCtx {
         set: &set,
@@ -144,6 +182,7 @@ pub fn run_with_stages(
         plan: &plan,
         stages,
         writer: &writer,
+        stitch,
     };
     let res = run_inner(&ctx, progress);
     let _ = std::fs::remove_dir_all(&spill_dir);
@@ -200,14 +239,21 @@ fn run_inner(ctx: &RunCtx, progress: ProgressFn) -> Result<Summary> {
     let (chunk_tx, chunk_rx) = bounded::<ReadMsg>(plan.chunk_depth);
     let (free_tx, free_rx) = bounded::<Vec<u8>>(plan.chunk_depth + 2);
     let (job_tx, job_rx) = bounded::<TileJob>(plan.workers);
-    let (res_tx, res_rx) = bounded::<Processed>(1);
+    let (res_tx, res_rx) = bounded::<ToWriter>(1);
     let layout = &set.layout;
     let tread = Mutex::new(0.0f64);
     let ttile = Mutex::new(0.0f64);
 
-    let mut summary = Summary::default();
     let twrite = Instant::now();
-    let mut write_s = 0.0;
+    let mut collector = Collector::new(
+        ctx.writer,
+        ctx.out_dir,
+        ctx.stitch
+            .as_ref()
+            .map(|st| (cfg.stitch.clone(), st.strip_m)),
+    );
+    // The tiler tells the stitcher which cells it releases, before their jobs leave.
+    let release_tx = ctx.stitch.is_some().then(|| res_tx.clone());
     std::thread::scope(|s| {
         // Reader.
         s.spawn(|| {
@@ -250,9 +296,17 @@ fn run_inner(ctx: &RunCtx, progress: ProgressFn) -> Result<Summary> {
         });
         // Tiler.
         s.spawn(|| {
+            let release_tx = release_tx;
             let t = Instant::now();
             let r = (|| -> Result<()> {
                 let mut tiler = Tiler::new(grid, layout, &set.files, spill_dir, plan.spill_bytes);
+                let announce = |tiler: &mut Tiler| -> bool {
+                    let cells = tiler.take_releases();
+                    match &release_tx {
+                        Some(tx) if !cells.is_empty() => tx.send(ToWriter::Released(cells)).is_ok(),
+                        _ => true,
+                    }
+                };
                 for msg in chunk_rx.iter() {
                     match msg {
                         ReadMsg::Chunk {
@@ -265,7 +319,11 @@ fn run_inner(ctx: &RunCtx, progress: ProgressFn) -> Result<Summary> {
                             max_open.fetch_max(tiler.open_tiles() as u64, Ordering::Relaxed);
                         }
                         ReadMsg::FileDone(f) => {
-                            for job in tiler.file_done(f)? {
+                            let jobs = tiler.file_done(f)?;
+                            if !announce(&mut tiler) {
+                                return Ok(());
+                            }
+                            for job in jobs {
                                 if job_tx.send(job).is_err() {
                                     return Ok(());
                                 }
@@ -276,7 +334,11 @@ fn run_inner(ctx: &RunCtx, progress: ProgressFn) -> Result<Summary> {
                 if failure.failed() {
                     return Ok(());
                 }
-                for job in tiler.finish()? {
+                let jobs = tiler.finish()?;
+                if !announce(&mut tiler) {
+                    return Ok(());
+                }
+                for job in jobs {
                     if job_tx.send(job).is_err() {
                         return Ok(());
                     }
@@ -295,7 +357,7 @@ fn run_inner(ctx: &RunCtx, progress: ProgressFn) -> Result<Summary> {
         // Workers.
         for _ in 0..plan.workers {
             let job_rx: Receiver<TileJob> = job_rx.clone();
-            let res_tx: Sender<Processed> = res_tx.clone();
+            let res_tx: Sender<ToWriter> = res_tx.clone();
             let failure = &failure;
             s.spawn(move || {
                 for job in job_rx.iter() {
@@ -311,46 +373,21 @@ fn run_inner(ctx: &RunCtx, progress: ProgressFn) -> Result<Summary> {
         }
         drop(res_tx);
         drop(job_rx);
-        // Writer (this thread): commits tiles in arrival order and keeps the books.
-        for p in res_rx.iter() {
+        // Writer (this thread): commits tiles (stitched ones once their ids are final) and
+        // keeps the books.
+        for msg in res_rx.iter() {
             if failure.failed() {
-                p.pending.abandon();
+                msg.abandon();
                 continue;
             }
-            let t = Instant::now();
-            let Processed {
-                name,
-                pending,
-                n_core,
-                buffer_points,
-                report,
-                split_root,
-            } = p;
-            match pending.commit() {
-                Ok(path) => {
-                    summary.points_out += n_core;
-                    if let Some(root) = split_root {
-                        if !summary.split_tiles.contains(&root) {
-                            summary.split_tiles.push(root);
-                        }
-                    }
-                    for (k, v) in &report.seconds {
-                        *summary.seconds.entry(format!("stage_{k}")).or_default() += v;
-                    }
-                    summary.tile_list.push(TileSummary {
-                        name,
-                        file: path
-                            .file_name()
-                            .map(|f| f.to_string_lossy().into_owned())
-                            .unwrap_or_default(),
-                        points: n_core,
-                        buffer_points,
-                        stats: report.stats,
-                    });
-                }
-                Err(e) => failure.set(e),
+            if let Err(e) = collector.handle(msg) {
+                failure.set(e);
             }
-            write_s += t.elapsed().as_secs_f64();
+        }
+        if !failure.failed() {
+            if let Err(e) = collector.finish() {
+                failure.set(e);
+            }
         }
     });
     if let Some(e) = failure
@@ -359,6 +396,15 @@ fn run_inner(ctx: &RunCtx, progress: ProgressFn) -> Result<Summary> {
         .unwrap_or_else(|p| p.into_inner())
     {
         return Err(e);
+    }
+    let Collector {
+        mut summary,
+        write_s,
+        stitch_s,
+        ..
+    } = collector;
+    if ctx.stitch.is_some() {
+        summary.seconds.insert("stitch".into(), stitch_s);
     }
     summary.buffer_m = buffer_m;
     summary.tiles = summary.tile_list.len();
@@ -381,7 +427,7 @@ fn run_inner(ctx: &RunCtx, progress: ProgressFn) -> Result<Summary> {
 
 /// Processes one job: splits it while it is too big for the budget, then loads and runs the
 /// stages on each resulting tile and compresses its core points to a temporary file.
-fn work(job: TileJob, ctx: &RunCtx, res_tx: &Sender<Processed>) -> Result<()> {
+fn work(job: TileJob, ctx: &RunCtx, res_tx: &Sender<ToWriter>) -> Result<()> {
     let RunCtx {
         set,
         out_dir,
@@ -390,8 +436,11 @@ fn work(job: TileJob, ctx: &RunCtx, res_tx: &Sender<Processed>) -> Result<()> {
         plan,
         stages,
         writer,
+        ref stitch,
     } = *ctx;
     let root = job.name.to_string();
+    let cell = (job.id.ix, job.id.iy);
+    let mut leaves = 0;
     let mut todo = vec![job];
     let mut was_split = false;
     while let Some(job) = todo.pop() {
@@ -421,6 +470,12 @@ fn work(job: TileJob, ctx: &RunCtx, res_tx: &Sender<Processed>) -> Result<()> {
         let name = tile.name.to_string();
         let n_core = tile.n_core;
         let buffer_points = (tile.len() - n_core) as u64;
+        let summary = match stitch {
+            Some(st) => Some(BorderSummary::build(&tile, st.strip_m, |pid| {
+                st.ordinal(pid)
+            })?),
+            None => None,
+        };
         let mut records = std::mem::take(&mut tile.records);
         records.truncate(n_core * set.layout.record_len);
         let t = Instant::now();
@@ -431,23 +486,35 @@ fn work(job: TileJob, ctx: &RunCtx, res_tx: &Sender<Processed>) -> Result<()> {
             ids: tile.segments.get(..n_core).unwrap_or(&[]),
             table,
         });
-        let pending = writer.prepare(out_dir, &name, records, seg)?;
+        let output = match (summary, seg) {
+            (Some(summary), Some(seg)) => TileOutput::Deferred(
+                writer.defer(spill_dir, &name, records, seg)?,
+                Box::new(summary),
+            ),
+            (_, seg) => TileOutput::Written(writer.prepare(out_dir, &name, records, seg)?),
+        };
         drop(tile);
         report
             .seconds
             .insert("compress".into(), t.elapsed().as_secs_f64());
         let p = Processed {
-            name,
-            pending,
-            n_core: n_core as u64,
-            buffer_points,
-            report,
-            split_root: was_split.then(|| root.clone()),
+            meta: TileMeta {
+                name,
+                n_core: n_core as u64,
+                buffer_points,
+                report,
+                split_root: was_split.then(|| root.clone()),
+            },
+            output,
         };
-        if let Err(e) = res_tx.send(p) {
-            e.into_inner().pending.abandon();
+        if let Err(e) = res_tx.send(ToWriter::Tile(Box::new(p))) {
+            e.into_inner().abandon();
             return Ok(());
         }
+        leaves += 1;
+    }
+    if stitch.is_some() {
+        let _ = res_tx.send(ToWriter::CellDone { cell, leaves });
     }
     Ok(())
 }
