@@ -49,8 +49,8 @@ pub struct StitchParams {
     /// Two segments of neighbouring tiles merge only if they share at least this many
     /// overlap points …
     pub min_shared_points: usize,
-    /// … and at least this fraction of the smaller segment's overlap points (its points in
-    /// the overlap of the two tiles).
+    /// … and at least this fraction of *each* segment's overlap points (its points in the
+    /// overlap of the two tiles); see [`pairs`].
     pub min_shared_fraction: f64,
 }
 
