@@ -57,6 +57,8 @@ struct CellState {
 struct TileState<P> {
     summary: Option<BorderSummary>,
     ids: Vec<u64>,
+    /// Per label: whether the segment has core points (is written by this tile).
+    core: Vec<bool>,
     nodes: Vec<u32>,
     pending: u32,
     closed: bool,
@@ -93,7 +95,7 @@ impl<P> Stitcher<P> {
         let stats = StitchStats {
             strip_m,
             min_shared_points: params.min_shared_points,
-            min_shared_fraction: params.min_shared_fraction,
+            majority_fraction: params.majority_fraction,
             ..Default::default()
         };
         Stitcher {
@@ -247,11 +249,13 @@ impl<P> Stitcher<P> {
         s.frontier_records_max = s.frontier_records_max.max(self.held_records);
         s.frontier_bytes_max = s.frontier_bytes_max.max(self.held_bytes);
         s.open_nodes_max = s.open_nodes_max.max(self.comps.len() as u64);
+        let core = summary.anchors.iter().map(|&a| a != u64::MAX).collect();
         self.tiles.insert(
             slot,
             TileState {
                 summary: Some(summary),
                 ids,
+                core,
                 pending: nodes.len() as u32,
                 nodes,
                 closed: false,
@@ -400,7 +404,21 @@ impl<P> Stitcher<P> {
             f.min_ordinal + 1
         };
         if id != 0 {
-            let tiles: HashSet<u32> = f.members.iter().map(|&m| split(m).0).collect();
+            // Tiles that write points of the segment (pieces seen only in a buffer do not
+            // make a segment cross a border).
+            let tiles: HashSet<u32> = f
+                .members
+                .iter()
+                .map(|&m| split(m))
+                .filter(|&(slot, label)| {
+                    self.tiles
+                        .get(&slot)
+                        .and_then(|t| t.core.get(label as usize - 1))
+                        .copied()
+                        .unwrap_or(false)
+                })
+                .map(|(slot, _)| slot)
+                .collect();
             let s = &mut self.stats;
             s.global_segments += 1;
             if tiles.len() >= 2 {

@@ -49,9 +49,9 @@ pub struct StitchParams {
     /// Two segments of neighbouring tiles merge only if they share at least this many
     /// overlap points …
     pub min_shared_points: usize,
-    /// … and at least this fraction of *each* segment's overlap points (its points in the
-    /// overlap of the two tiles); see [`pairs`].
-    pub min_shared_fraction: f64,
+    /// … and more than this fraction of *each* segment's overlap points (its points in the
+    /// overlap of the two tiles); 0.5 = a strict majority of both, one-to-one. See [`pairs`].
+    pub majority_fraction: f64,
 }
 
 impl Default for StitchParams {
@@ -59,7 +59,7 @@ impl Default for StitchParams {
         StitchParams {
             enabled: true,
             min_shared_points: 5,
-            min_shared_fraction: 0.5,
+            majority_fraction: 0.5,
         }
     }
 }
@@ -70,10 +70,10 @@ impl StitchParams {
         if self.min_shared_points == 0 {
             return Err("stitch.min_shared_points must be ≥ 1".into());
         }
-        if !(self.min_shared_fraction > 0.0 && self.min_shared_fraction <= 1.0) {
+        if !(self.majority_fraction > 0.0 && self.majority_fraction < 1.0) {
             return Err(format!(
-                "stitch.min_shared_fraction must be in (0, 1], got {}",
-                self.min_shared_fraction
+                "stitch.majority_fraction must be in (0, 1), got {}",
+                self.majority_fraction
             ));
         }
         Ok(())
@@ -116,7 +116,7 @@ pub struct StitchStats {
     /// The merge thresholds used.
     pub min_shared_points: usize,
     /// The merge thresholds used.
-    pub min_shared_fraction: f64,
+    pub majority_fraction: f64,
     /// Tiles stitched.
     pub tiles: u64,
     /// Neighbouring tile pairs whose overlaps were matched.
@@ -135,9 +135,9 @@ pub struct StitchStats {
     pub local_segments: u64,
     /// Final global segments with core points.
     pub global_segments: u64,
-    /// Global segments made of local segments of two or more tiles (crossing a border).
+    /// Global segments with core points in two or more tiles (crossing a border).
     pub segments_crossing_borders: u64,
-    /// Largest number of tiles a global segment spans.
+    /// Largest number of tiles a global segment has core points in.
     pub max_tiles_per_segment: u64,
     /// Most tiles whose border summaries were held at once (the frontier).
     pub frontier_tiles_max: u64,
