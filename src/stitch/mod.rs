@@ -150,3 +150,6 @@ pub struct StitchStats {
     /// Most closed tiles waiting for a component to become final before being written.
     pub waiting_tiles_max: u64,
 }
+
+#[cfg(test)]
+mod tests;
