@@ -249,7 +249,12 @@ fn street(dir: &Path) -> PathBuf {
 fn synthetic_street_tiled_equals_untiled() {
     let tmp = tempfile::tempdir().unwrap();
     let input = street(&tmp.path().join("in"));
-    check(&[input.clone()], 0.001, "synthetic street", tmp.path());
+    check(
+        std::slice::from_ref(&input),
+        0.001,
+        "synthetic street",
+        tmp.path(),
+    );
 
     // Without stitching (tile-local ids) the same measure must fail the gate: the test sees
     // the stitching.
@@ -291,7 +296,7 @@ fn ids_independent_of_thread_count() {
     for threads in [1, 2] {
         let out = tmp.path().join(format!("threads{threads}"));
         run(
-            &[input.clone()],
+            std::slice::from_ref(&input),
             &out,
             25.0,
             20.0,

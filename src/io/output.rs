@@ -61,7 +61,7 @@ impl SegmentIdType {
         }
     }
     /// Bytes per value.
-    pub fn len(self) -> usize {
+    pub fn bytes(self) -> usize {
         match self {
             SegmentIdType::U32 => 4,
             SegmentIdType::U64 => 8,
@@ -158,7 +158,7 @@ impl TileWriter {
                         }),
                     }
                     let mut f = layout.format;
-                    f.extra_bytes += id_type.len() as u16;
+                    f.extra_bytes += id_type.bytes() as u16;
                     b.point_format.extra_bytes = f.extra_bytes;
                     out_layout = RecordLayout::new(f, layout.transforms);
                     segment_field = SegmentField::Append;
@@ -195,7 +195,7 @@ impl TileWriter {
 
     /// `records` (run layout) turned into output records carrying `ids(i)` as segment id.
     fn with_ids(&self, mut records: Vec<u8>, ids: impl Fn(usize) -> u64) -> Vec<u8> {
-        let w = self.id_type.len();
+        let w = self.id_type.bytes();
         let put = |dst: &mut [u8], v: u64| dst.copy_from_slice(&v.to_le_bytes()[..w]);
         match self.segment_field {
             SegmentField::None => records,
@@ -318,7 +318,7 @@ impl TileWriter {
         let off = self.id_offset().ok_or_else(|| {
             Error::Internal("deferred tile without a segment id attribute".into())
         })?;
-        let w = self.id_type.len();
+        let w = self.id_type.bytes();
         let rl = self.out_layout.record_len;
         let global = |local: u64| -> Result<u64> {
             if local == 0 {

@@ -92,11 +92,13 @@ impl<'a> Collector<'a> {
                 if let Some(st) = &mut self.stitcher {
                     st.released(&cells);
                 }
+                self.stitch_s += t.elapsed().as_secs_f64();
             }
             ToWriter::CellDone { cell, leaves } => {
                 if let Some(st) = &mut self.stitcher {
                     st.cell_done(cell, leaves)?;
                 }
+                self.stitch_s += t.elapsed().as_secs_f64();
             }
             ToWriter::Tile(p) => {
                 let Processed { meta, output } = *p;
@@ -104,9 +106,13 @@ impl<'a> Collector<'a> {
                     TileOutput::Written(pending) => {
                         let path = pending.commit()?;
                         self.book(meta, &path);
+                        self.write_s += t.elapsed().as_secs_f64();
                     }
                     TileOutput::Deferred(d, summary) => match &mut self.stitcher {
-                        Some(st) => st.add_tile(*summary, (meta, d))?,
+                        Some(st) => {
+                            st.add_tile(*summary, (meta, d))?;
+                            self.stitch_s += t.elapsed().as_secs_f64();
+                        }
                         None => {
                             d.abandon();
                             return Err(Error::Internal(
@@ -117,7 +123,6 @@ impl<'a> Collector<'a> {
                 }
             }
         }
-        self.stitch_s += t.elapsed().as_secs_f64();
         self.write_ready()
     }
 

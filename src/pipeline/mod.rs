@@ -133,12 +133,17 @@ pub fn run_with_stages(
         .max()
         .unwrap_or(0)
         + 8;
-    let plan = BudgetPlan::new(
+    let segments = stages.iter().any(|s| s.name() == "segment");
+    let stitching = segments && cfg.stitch.enabled;
+    let mut plan = BudgetPlan::new(
         cfg.pipeline.memory_budget_mb,
         set.layout.record_len,
         stage_bpp,
         workers,
     )?;
+    if stitching {
+        plan.reserve_stitch()?;
+    }
     std::fs::create_dir_all(out_dir).map_err(|e| Error::io(out_dir, e))?;
     let spill_dir = if cfg.pipeline.spill_dir.is_empty() {
         out_dir.join(".tessera-spill")
@@ -148,18 +153,25 @@ pub fn run_with_stages(
     // A previous crashed run may have left spill files; they are never valid for a new run.
     let _ = std::fs::remove_dir_all(&spill_dir);
     std::fs::create_dir_all(&spill_dir).map_err(|e| Error::io(&spill_dir, e))?;
-    let segments = stages.iter().any(|s| s.name() == "segment");
     // Stitching needs the segment stage (whose buffer strip is the overlap the tiles are
     // matched in). Global ids are point ordinals + 1: u32 while the run has fewer points.
-    let stitch = (segments && cfg.stitch.enabled).then(|| {
+    let stitch = stitching.then(|| {
         let mut first_ordinal = Vec::with_capacity(set.files.len());
         let mut acc = 0u64;
         for f in &set.files {
             first_ordinal.push(acc);
             acc += f.points;
         }
+        let strip_m = cfg.segment.buffer_m.min(cfg.tiling.buffer_m);
+        if strip_m <= 0.0 {
+            tracing::warn!(
+                "stitching with a 0 m overlap strip (segment.buffer_m = {}, tiling.buffer_m = {}): segments cannot be matched across borders and keep one id per tile",
+                cfg.segment.buffer_m,
+                cfg.tiling.buffer_m
+            );
+        }
         StitchCtx {
-            strip_m: cfg.segment.buffer_m.min(cfg.tiling.buffer_m),
+            strip_m,
             first_ordinal,
         }
     });
@@ -196,6 +208,15 @@ pub fn run_with_stages(
     summary.points_in = set.total_points;
     summary.memory_budget_mb = cfg.pipeline.memory_budget_mb;
     summary.point_format = set.layout.format.to_u8().unwrap_or(255);
+    if let Some(st) = &summary.stitch {
+        if st.frontier_bytes_max > plan.stitch_bytes {
+            tracing::warn!(
+                "the stitcher's frontier peaked at {} MiB, above the {} MiB reserved for it in the memory plan",
+                st.frontier_bytes_max >> 20,
+                plan.stitch_bytes >> 20
+            );
+        }
+    }
     summary.budget = Some(plan);
     summary.peak_rss_mb = peak_rss_mb().unwrap_or(0.0);
     if summary.points_out != summary.points_in {
