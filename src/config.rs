@@ -82,6 +82,8 @@ pub struct Config {
     pub label: crate::pipeline::label_stage::LabelSection,
     /// `[mcap]`
     pub mcap: crate::io::mcap::McapParams,
+    /// `[stitch]`
+    pub stitch: crate::stitch::StitchParams,
 }
 
 impl Config {
@@ -172,6 +174,7 @@ impl Config {
             .validate()
             .map_err(|e| Error::Config(format!("ground.params: {e}")))?;
         self.mcap.validate()?;
+        self.stitch.validate().map_err(Error::Config)?;
         if self.stages.run.is_empty() {
             return Err(Error::Config(
                 "stages.run must name at least one stage".into(),

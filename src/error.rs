@@ -51,6 +51,9 @@ pub enum Error {
         /// What went wrong.
         reason: String,
     },
+    /// Cross-tile stitching failed (an invariant of the message flow or a summary).
+    #[error(transparent)]
+    Stitch(#[from] crate::stitch::StitchError),
     /// An internal invariant was violated (a bug): the run stops rather than lose data.
     #[error("internal error: {0}")]
     Internal(String),

@@ -15,6 +15,7 @@ pub mod model;
 pub mod pipeline;
 pub mod report;
 pub mod segment;
+pub mod stitch;
 pub mod synth;
 pub mod sys;
 pub mod thin;

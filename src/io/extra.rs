@@ -9,6 +9,8 @@ pub const RECORD_ID: u16 = 4;
 pub const DESCRIPTOR_LEN: usize = 192;
 /// Data type code of an unsigned 32-bit attribute.
 pub const TYPE_U32: u8 = 5;
+/// Data type code of an unsigned 64-bit attribute.
+pub const TYPE_U64: u8 = 7;
 
 /// One attribute described by an extra-bytes VLR.
 #[derive(Debug, Clone, PartialEq, Eq)]

@@ -36,10 +36,44 @@ pub fn tmp_path(path: &Path) -> PathBuf {
 pub enum SegmentField {
     /// No segmentation ran: records are written as they are.
     None,
-    /// Appended as a new `segment_id` u32 extra-bytes attribute (4 bytes after the record).
+    /// Appended as a new `segment_id` extra-bytes attribute (after the record).
     Append,
-    /// The input already has a `segment_id` u32 attribute at this record offset: overwritten.
+    /// The input already has a `segment_id` attribute of the right type at this record
+    /// offset: overwritten.
     InPlace(usize),
+}
+
+/// Integer type of the `segment_id` attribute.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SegmentIdType {
+    /// Unsigned 32-bit (tile-local ids, and stitched ids of runs under 2^32 − 1 points).
+    U32,
+    /// Unsigned 64-bit (stitched ids of larger runs: ids are point ordinals + 1).
+    U64,
+}
+
+impl SegmentIdType {
+    /// Extra-bytes data type code (LAS 1.4 R15 table 24).
+    pub fn code(self) -> u8 {
+        match self {
+            SegmentIdType::U32 => extra::TYPE_U32,
+            SegmentIdType::U64 => extra::TYPE_U64,
+        }
+    }
+    /// Bytes per value.
+    pub fn bytes(self) -> usize {
+        match self {
+            SegmentIdType::U32 => 4,
+            SegmentIdType::U64 => 8,
+        }
+    }
+    /// Largest id the type holds.
+    pub fn max(self) -> u64 {
+        match self {
+            SegmentIdType::U32 => u32::MAX as u64,
+            SegmentIdType::U64 => u64::MAX,
+        }
+    }
 }
 
 /// Name of the per-point segment id attribute.
@@ -64,18 +98,20 @@ pub struct TileWriter {
     /// Layout of the records written (the run layout plus an appended `segment_id`).
     out_layout: RecordLayout,
     segment_field: SegmentField,
+    id_type: SegmentIdType,
     extension: &'static str,
 }
 
 impl TileWriter {
     /// Prepares a writer from the first input's header and the run layout. With
-    /// `segments`, output records carry a `segment_id` u32 extra-bytes attribute (reusing the
-    /// input's own `segment_id` attribute when it has one, so re-runs do not stack copies).
+    /// `segments`, output records carry a `segment_id` extra-bytes attribute of that type
+    /// (reusing the input's own `segment_id` attribute when it has one of the same type, so
+    /// re-runs do not stack copies).
     pub fn new(
         template: &las::Header,
         layout: &RecordLayout,
         laz: bool,
-        segments: bool,
+        segments: Option<SegmentIdType>,
     ) -> Result<Self> {
         let mut b = Builder::from(template.clone());
         b.version = Version::new(1, 4);
@@ -89,7 +125,8 @@ impl TileWriter {
         b.generating_software = format!("tessera {}", env!("CARGO_PKG_VERSION"));
         let mut out_layout = layout.clone();
         let mut segment_field = SegmentField::None;
-        if segments {
+        let id_type = segments.unwrap_or(SegmentIdType::U32);
+        if segments.is_some() {
             let is_eb =
                 |v: &las::Vlr| v.user_id == extra::USER_ID && v.record_id == extra::RECORD_ID;
             let eb_start = layout.record_len - usize::from(layout.format.extra_bytes);
@@ -99,17 +136,18 @@ impl TileWriter {
                     .find(|f| f.name == SEGMENT_ID)
             });
             match existing {
-                Some(f) if f.data_type == extra::TYPE_U32 => {
+                Some(f) if f.data_type == id_type.code() => {
                     segment_field = SegmentField::InPlace(eb_start + f.offset);
                 }
                 Some(f) => {
                     return Err(Error::Config(format!(
-                        "the input already has a \"{SEGMENT_ID}\" attribute of extra-bytes type {} (not u32); rename it before segmenting",
-                        f.data_type
+                        "the input already has a \"{SEGMENT_ID}\" attribute of extra-bytes type {} (this run writes type {}); rename it before segmenting",
+                        f.data_type,
+                        id_type.code()
                     )))
                 }
                 None => {
-                    let d = extra::descriptor(extra::TYPE_U32, SEGMENT_ID, "tessera segment id, 0 = none");
+                    let d = extra::descriptor(id_type.code(), SEGMENT_ID, "tessera segment id, 0 = none");
                     match b.vlrs.iter_mut().find(|v| is_eb(v)) {
                         Some(v) => v.data.extend(d),
                         None => b.vlrs.push(las::Vlr {
@@ -120,7 +158,7 @@ impl TileWriter {
                         }),
                     }
                     let mut f = layout.format;
-                    f.extra_bytes += 4;
+                    f.extra_bytes += id_type.bytes() as u16;
                     b.point_format.extra_bytes = f.extra_bytes;
                     out_layout = RecordLayout::new(f, layout.transforms);
                     segment_field = SegmentField::Append;
@@ -136,8 +174,47 @@ impl TileWriter {
             layout: layout.clone(),
             out_layout,
             segment_field,
+            id_type,
             extension: if laz { "laz" } else { "las" },
         })
+    }
+
+    /// Byte offset of the segment id in an output record, if records carry one.
+    fn id_offset(&self) -> Option<usize> {
+        match self.segment_field {
+            SegmentField::None => None,
+            SegmentField::InPlace(o) => Some(o),
+            SegmentField::Append => Some(self.layout.record_len),
+        }
+    }
+
+    /// Type of the segment id attribute.
+    pub fn id_type(&self) -> SegmentIdType {
+        self.id_type
+    }
+
+    /// `records` (run layout) turned into output records carrying `ids(i)` as segment id.
+    fn with_ids(&self, mut records: Vec<u8>, ids: impl Fn(usize) -> u64) -> Vec<u8> {
+        let w = self.id_type.bytes();
+        let put = |dst: &mut [u8], v: u64| dst.copy_from_slice(&v.to_le_bytes()[..w]);
+        match self.segment_field {
+            SegmentField::None => records,
+            SegmentField::InPlace(o) => {
+                for (i, rec) in records.chunks_exact_mut(self.layout.record_len).enumerate() {
+                    put(&mut rec[o..o + w], ids(i));
+                }
+                records
+            }
+            SegmentField::Append => {
+                let n = records.len() / self.layout.record_len;
+                let mut out = Vec::with_capacity(n * self.out_layout.record_len);
+                for (i, rec) in records.chunks_exact(self.layout.record_len).enumerate() {
+                    out.extend_from_slice(rec);
+                    out.extend_from_slice(&ids(i).to_le_bytes()[..w]);
+                }
+                out
+            }
+        }
     }
 
     /// Whether output records carry a segment id (a segmentation stage runs).
@@ -153,29 +230,18 @@ impl TileWriter {
         &self,
         dir: &Path,
         name: &str,
-        mut records: Vec<u8>,
+        records: Vec<u8>,
         segments: Option<TileSegments<'_>>,
     ) -> Result<PendingTile> {
         let path = dir.join(format!("{name}.{}", self.extension));
         let mut pending = PendingTile { files: Vec::new() };
-        let n = records.len() / self.layout.record_len;
-        let ids = |i: usize| segments.and_then(|s| s.ids.get(i).copied()).unwrap_or(0);
-        match self.segment_field {
-            SegmentField::None => {}
-            SegmentField::InPlace(o) => {
-                for (i, rec) in records.chunks_exact_mut(self.layout.record_len).enumerate() {
-                    rec[o..o + 4].copy_from_slice(&ids(i).to_le_bytes());
-                }
-            }
-            SegmentField::Append => {
-                let mut out = Vec::with_capacity(n * self.out_layout.record_len);
-                for (i, rec) in records.chunks_exact(self.layout.record_len).enumerate() {
-                    out.extend_from_slice(rec);
-                    out.extend_from_slice(&ids(i).to_le_bytes());
-                }
-                records = out;
-            }
-        }
+        let ids = |i: usize| {
+            segments
+                .and_then(|s| s.ids.get(i).copied())
+                .unwrap_or(0)
+                .into()
+        };
+        let records = self.with_ids(records, ids);
         let tmp = tmp_path(&path);
         pending.files.push((tmp.clone(), path));
         if let Err(e) = self.write_to(&tmp, records) {
@@ -194,27 +260,192 @@ impl TileWriter {
         Ok(pending)
     }
 
-    // No fsync: rename after a complete write already guarantees readers never see a partial
-    // tile if the process dies; syncing every tile would cost more than the compression.
-    fn write_to(&self, tmp: &Path, records: Vec<u8>) -> Result<()> {
+    /// Stitching: writes the tile's core `records` (run layout) with their *local* segment ids
+    /// uncompressed to `spill_dir` (and its segment table beside them), to be written for
+    /// real by [`TileWriter::finish_deferred`] once the global ids are known. Uncompressed
+    /// because the file is read back exactly once: compressing twice would double the
+    /// output's dominant cost (LAZ coding).
+    pub fn defer(
+        &self,
+        spill_dir: &Path,
+        name: &str,
+        records: Vec<u8>,
+        segments: TileSegments<'_>,
+    ) -> Result<DeferredTile> {
+        let n = records.len() / self.layout.record_len;
+        if segments.ids.len() != n {
+            return Err(Error::Internal(format!(
+                "tile {name}: {} segment ids for {n} core points",
+                segments.ids.len()
+            )));
+        }
+        let records = self.with_ids(records, |i| segments.ids[i].into());
+        let d = DeferredTile {
+            name: name.to_string(),
+            raw: spill_dir.join(format!("{name}.stitch")),
+            table: spill_dir.join(format!("{name}.segments.part")),
+            points: n,
+        };
+        let res = std::fs::write(&d.raw, &records)
+            .map_err(|e| Error::io(&d.raw, e))
+            .and_then(|_| {
+                std::fs::write(&d.table, segments.table).map_err(|e| Error::io(&d.table, e))
+            });
+        if let Err(e) = res {
+            d.abandon();
+            return Err(e);
+        }
+        Ok(d)
+    }
+
+    /// Writes a deferred tile into `dir` (temporary names; commit with
+    /// [`PendingTile::commit`]) with local segment id `l` replaced by `ids[l - 1]`, reading
+    /// its uncompressed records once, in blocks, and deletes the deferred files. The segment
+    /// table gets the global id first and the local id in a `local_id` column.
+    pub fn finish_deferred(&self, dir: &Path, d: DeferredTile, ids: &[u64]) -> Result<PendingTile> {
+        let res = self.finish_deferred_inner(dir, &d, ids);
+        d.abandon();
+        res
+    }
+
+    fn finish_deferred_inner(
+        &self,
+        dir: &Path,
+        d: &DeferredTile,
+        ids: &[u64],
+    ) -> Result<PendingTile> {
+        use std::io::Read;
+        let off = self.id_offset().ok_or_else(|| {
+            Error::Internal("deferred tile without a segment id attribute".into())
+        })?;
+        let w = self.id_type.bytes();
+        let rl = self.out_layout.record_len;
+        let global = |local: u64| -> Result<u64> {
+            if local == 0 {
+                return Ok(0);
+            }
+            let id = usize::try_from(local - 1)
+                .ok()
+                .and_then(|i| ids.get(i))
+                .copied()
+                .ok_or_else(|| {
+                    Error::Internal(format!(
+                        "tile {}: local segment {local} has no global id ({} known)",
+                        d.name,
+                        ids.len()
+                    ))
+                })?;
+            if id > self.id_type.max() {
+                return Err(crate::stitch::StitchError::IdOverflow(id).into());
+            }
+            Ok(id)
+        };
+        let path = dir.join(format!("{}.{}", d.name, self.extension));
+        let tmp = tmp_path(&path);
+        let mut pending = PendingTile {
+            files: vec![(tmp.clone(), path)],
+        };
+        let res = (|| -> Result<()> {
+            let file = File::open(&d.raw).map_err(|e| Error::io(&d.raw, e))?;
+            let mut src = std::io::BufReader::with_capacity(1 << 20, file);
+            let mut writer = self.open_writer(&tmp)?;
+            const BLOCK: usize = 64 * 1024;
+            let mut left = d.points;
+            while left > 0 {
+                let n = left.min(BLOCK);
+                let mut buf = vec![0u8; n * rl];
+                src.read_exact(&mut buf).map_err(|e| Error::io(&d.raw, e))?;
+                for rec in buf.chunks_exact_mut(rl) {
+                    let mut raw = [0u8; 8];
+                    raw[..w].copy_from_slice(&rec[off..off + w]);
+                    let id = global(u64::from_le_bytes(raw))?;
+                    rec[off..off + w].copy_from_slice(&id.to_le_bytes()[..w]);
+                }
+                let data = PointDataBuilder::new()
+                    .with_format(self.out_layout.format)
+                    .with_transforms(self.out_layout.transforms)
+                    .build_from_bytes(buf)
+                    .map_err(|e| Error::las(&tmp, e))?;
+                writer
+                    .write_points(&data)
+                    .map_err(|e| Error::las(&tmp, e))?;
+                left -= n;
+            }
+            Self::close_writer(writer, &tmp)?;
+            let table = std::fs::read_to_string(&d.table).map_err(|e| Error::io(&d.table, e))?;
+            let mut out = String::with_capacity(table.len() + table.len() / 4);
+            for (i, line) in table.lines().enumerate() {
+                let (first, rest) = line.split_once('\t').unwrap_or((line, ""));
+                if i == 0 {
+                    out.push_str(&format!("{first}\tlocal_id\t{rest}\n"));
+                    continue;
+                }
+                let local: u64 = first.parse().map_err(|_| {
+                    Error::Internal(format!("tile {}: bad segment table row '{line}'", d.name))
+                })?;
+                out.push_str(&format!("{}\t{local}\t{rest}\n", global(local)?));
+            }
+            let tpath = dir.join(format!("{}.segments.tsv", d.name));
+            let ttmp = tmp_path(&tpath);
+            pending.files.push((ttmp.clone(), tpath));
+            std::fs::write(&ttmp, out).map_err(|e| Error::io(&ttmp, e))
+        })();
+        if let Err(e) = res {
+            pending.abandon();
+            return Err(e);
+        }
+        Ok(pending)
+    }
+
+    fn open_writer(&self, tmp: &Path) -> Result<Writer<BufWriter<File>>> {
         let file = File::create(tmp).map_err(|e| Error::io(tmp, e))?;
         // One tile per worker thread: sequential compression keeps each worker on one core.
         let opts = las::WriterOptions::default().with_laz_parallelism(las::LazParallelism::No);
-        let mut writer = Writer::with_options(
+        Writer::with_options(
             BufWriter::with_capacity(1 << 20, file),
             self.header.clone(),
             opts,
         )
-        .map_err(|e| Error::las(tmp, e))?;
+        .map_err(|e| Error::las(tmp, e))
+    }
+
+    fn close_writer(mut writer: Writer<BufWriter<File>>, tmp: &Path) -> Result<()> {
+        writer.close().map_err(|e| Error::las(tmp, e))?;
+        let mut inner = writer.into_inner().map_err(|e| Error::las(tmp, e))?;
+        inner.flush().map_err(|e| Error::io(tmp, e))
+    }
+
+    // No fsync: rename after a complete write already guarantees readers never see a partial
+    // tile if the process dies; syncing every tile would cost more than the compression.
+    fn write_to(&self, tmp: &Path, records: Vec<u8>) -> Result<()> {
+        let mut writer = self.open_writer(tmp)?;
         let data = PointDataBuilder::new()
             .with_format(self.out_layout.format)
             .with_transforms(self.out_layout.transforms)
             .build_from_bytes(records)
             .map_err(|e| Error::las(tmp, e))?;
         writer.write_points(&data).map_err(|e| Error::las(tmp, e))?;
-        writer.close().map_err(|e| Error::las(tmp, e))?;
-        let mut inner = writer.into_inner().map_err(|e| Error::las(tmp, e))?;
-        inner.flush().map_err(|e| Error::io(tmp, e))
+        Self::close_writer(writer, tmp)
+    }
+}
+
+/// A tile's core records with local segment ids, uncompressed in the spill directory, waiting
+/// for its global ids (see [`TileWriter::defer`]).
+#[derive(Debug)]
+pub struct DeferredTile {
+    /// Tile name.
+    pub name: String,
+    raw: PathBuf,
+    table: PathBuf,
+    /// Core points.
+    pub points: usize,
+}
+
+impl DeferredTile {
+    /// Deletes the deferred files.
+    pub fn abandon(&self) {
+        let _ = std::fs::remove_file(&self.raw);
+        let _ = std::fs::remove_file(&self.table);
     }
 }
 

@@ -43,6 +43,9 @@ pub struct BudgetPlan {
     /// Per stage: working bytes per point and how far beyond the core it works (None: the
     /// whole buffer).
     pub stages: Vec<(usize, Option<f64>)>,
+    /// Reserved for the stitcher's frontier (border summaries of tiles waiting for their
+    /// neighbours), bytes; 0 without stitching.
+    pub stitch_bytes: u64,
 }
 
 impl BudgetPlan {
@@ -110,6 +113,7 @@ impl BudgetPlan {
             tile_bytes,
             base_bytes_per_point,
             stages: stages.to_vec(),
+            stitch_bytes: 0,
         })
     }
 
@@ -136,7 +140,37 @@ impl BudgetPlan {
             .unwrap_or(0);
         n * self.base_bytes_per_point as u64 + stage <= self.tile_bytes
     }
+
+    /// Takes [`STITCH_SHARE`] of the tile memory for the stitcher's frontier and shrinks each
+    /// tile's share (and so the largest tile) accordingly.
+    ///
+    /// Estimate: a border summary costs at most 24 bytes per tile point (one record per
+    /// labelled point within the strip; usually a third of the points or fewer) against
+    /// `bytes_per_tile_point` (≈ 500–600 with the segment stage) for a tile in flight, and the
+    /// frontier held ~5–7 tiles in the runs measured (`scripts/bench_stitch.sh`, the
+    /// metamorphic gate): ≤ 7 × 24 / 550 ≈ 0.3 of one tile's share, under 15 % of the tile
+    /// memory with two or more workers. The run reports the real peak (`stitch.
+    /// frontier_bytes_max` in summary.json).
+    pub fn reserve_stitch(&mut self) -> Result<()> {
+        let all_tiles = self.tile_bytes * self.tiles_in_flight as u64;
+        let reserve = (all_tiles as f64 * STITCH_SHARE) as u64;
+        let tile_bytes = (all_tiles - reserve) / self.tiles_in_flight.max(1) as u64;
+        let max_tile_points = tile_bytes / self.bytes_per_tile_point.max(1) as u64;
+        if max_tile_points < 20_000 {
+            return Err(Error::Budget(format!(
+                "memory budget {} MiB leaves room for only {max_tile_points} points per tile once the stitcher's share is reserved; raise the budget, use fewer threads or set stitch.enabled = false",
+                self.budget_bytes >> 20
+            )));
+        }
+        self.stitch_bytes = reserve;
+        self.tile_bytes = tile_bytes;
+        self.max_tile_points = max_tile_points;
+        Ok(())
+    }
 }
+
+/// Share of the tile memory reserved for the stitcher (see [`BudgetPlan::reserve_stitch`]).
+pub const STITCH_SHARE: f64 = 0.15;
 
 #[cfg(test)]
 mod tests {
@@ -149,6 +183,11 @@ mod tests {
         assert!(b.max_tile_points > 3 * a.max_tile_points);
         assert!(a.max_tile_points > 200_000, "{a:?}");
         assert!(BudgetPlan::new(64, 34, 4000, 8).is_err());
+        let mut s = b.clone();
+        s.reserve_stitch().unwrap();
+        assert!(s.stitch_bytes > 0);
+        let ratio = s.max_tile_points as f64 / b.max_tile_points as f64;
+        assert!((ratio - (1.0 - STITCH_SHARE)).abs() < 0.01, "{ratio}");
     }
 
     #[test]

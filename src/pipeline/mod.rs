@@ -10,6 +10,7 @@
 //! the tiles in memory at once are bounded by the worker count.
 
 pub mod budget;
+mod collect;
 pub mod ground_stage;
 pub mod label_stage;
 pub mod segment_stage;
@@ -18,11 +19,13 @@ pub mod stage;
 use crate::config::Config;
 use crate::error::{Error, Result};
 use crate::io::input::read_file_chunks;
-use crate::io::output::{segment_table_tsv, TileSegments};
-use crate::io::{scan_inputs, write_atomic, InputSet, PendingTile, TileWriter};
-use crate::report::{peak_rss_mb, Summary, TileSummary};
+use crate::io::output::{segment_table_tsv, SegmentIdType, TileSegments};
+use crate::io::{scan_inputs, write_atomic, InputSet, TileWriter};
+use crate::report::{peak_rss_mb, Summary};
+use crate::stitch::BorderSummary;
 use crate::tiling::{load_tile, schedule, split_job, Grid, TileJob, Tiler};
 use budget::BudgetPlan;
+use collect::{Collector, Processed, TileMeta, TileOutput, ToWriter};
 use crossbeam_channel::{bounded, Receiver, Sender};
 pub use stage::{build_stages, Stage, StatsStage, TileReport};
 use std::path::{Path, PathBuf};
@@ -42,16 +45,6 @@ enum ReadMsg {
     FileDone(usize),
 }
 
-/// A processed tile, compressed by its worker and waiting to be committed by the writer.
-struct Processed {
-    name: String,
-    pending: PendingTile,
-    n_core: u64,
-    buffer_points: u64,
-    report: TileReport,
-    split_root: Option<String>,
-}
-
 /// Everything the pipeline threads share for one run.
 struct RunCtx<'a> {
     set: &'a InputSet,
@@ -61,6 +54,27 @@ struct RunCtx<'a> {
     plan: &'a BudgetPlan,
     stages: &'a [Box<dyn Stage>],
     writer: &'a TileWriter,
+    /// Stitching: the overlap strip width and each input's first point ordinal.
+    stitch: Option<StitchCtx>,
+}
+
+/// What workers need to summarise tiles for stitching.
+struct StitchCtx {
+    strip_m: f64,
+    /// Ordinal of the first point of each input file (prefix sums in input order).
+    first_ordinal: Vec<u64>,
+}
+
+impl StitchCtx {
+    /// Position of a point in the run's inputs: dense, deterministic, unique.
+    fn ordinal(&self, pid: u64) -> u64 {
+        let file = (pid >> 40) as usize;
+        self.first_ordinal
+            .get(file)
+            .copied()
+            .unwrap_or(u64::MAX >> 1)
+            + (pid & ((1 << 40) - 1))
+    }
 }
 
 /// Shared failure state: the first error wins; everyone else stops quietly.
@@ -144,12 +158,17 @@ pub fn run_with_stages(
         .iter()
         .map(|s| (s.bytes_per_point(), s.context_m()))
         .collect();
-    let plan = BudgetPlan::with_stages(
+    let segments = stages.iter().any(|s| s.name() == "segment");
+    let stitching = segments && cfg.stitch.enabled;
+    let mut plan = BudgetPlan::with_stages(
         cfg.pipeline.memory_budget_mb,
         set.layout.record_len,
         &stage_mem,
         workers,
     )?;
+    if stitching {
+        plan.reserve_stitch()?;
+    }
     std::fs::create_dir_all(out_dir).map_err(|e| Error::io(out_dir, e))?;
     let spill_dir = if cfg.pipeline.spill_dir.is_empty() {
         out_dir.join(".tessera-spill")
@@ -159,12 +178,38 @@ pub fn run_with_stages(
     // A previous crashed run may have left spill files; they are never valid for a new run.
     let _ = std::fs::remove_dir_all(&spill_dir);
     std::fs::create_dir_all(&spill_dir).map_err(|e| Error::io(&spill_dir, e))?;
-    let segments = stages.iter().any(|s| s.name() == "segment");
+    // Stitching needs the segment stage (whose buffer strip is the overlap the tiles are
+    // matched in). Global ids are point ordinals + 1: u32 while the run has fewer points.
+    let stitch = stitching.then(|| {
+        let mut first_ordinal = Vec::with_capacity(set.files.len());
+        let mut acc = 0u64;
+        for f in &set.files {
+            first_ordinal.push(acc);
+            acc += f.points;
+        }
+        let strip_m = cfg.segment.buffer_m.min(cfg.tiling.buffer_m);
+        if strip_m <= 0.0 {
+            tracing::warn!(
+                "stitching with a 0 m overlap strip (segment.buffer_m = {}, tiling.buffer_m = {}): segments cannot be matched across borders and keep one id per tile",
+                cfg.segment.buffer_m,
+                cfg.tiling.buffer_m
+            );
+        }
+        StitchCtx {
+            strip_m,
+            first_ordinal,
+        }
+    });
+    let id_type = if stitch.is_some() && set.total_points >= u32::MAX as u64 {
+        SegmentIdType::U64
+    } else {
+        SegmentIdType::U32
+    };
     let writer = TileWriter::new(
         &set.template,
         &set.layout,
         cfg.output.format == "laz",
-        segments,
+        segments.then_some(id_type),
     )?;
     let ctx = RunCtx {
         set: &set,
@@ -174,6 +219,7 @@ pub fn run_with_stages(
         plan: &plan,
         stages,
         writer: &writer,
+        stitch,
     };
     let res = run_inner(&ctx, progress);
     let _ = std::fs::remove_dir_all(&spill_dir);
@@ -188,6 +234,15 @@ pub fn run_with_stages(
     summary.points_in = set.total_points;
     summary.memory_budget_mb = cfg.pipeline.memory_budget_mb;
     summary.point_format = set.layout.format.to_u8().unwrap_or(255);
+    if let Some(st) = &summary.stitch {
+        if st.frontier_bytes_max > plan.stitch_bytes {
+            tracing::warn!(
+                "the stitcher's frontier peaked at {} MiB, above the {} MiB reserved for it in the memory plan",
+                st.frontier_bytes_max >> 20,
+                plan.stitch_bytes >> 20
+            );
+        }
+    }
     summary.budget = Some(plan);
     summary.peak_rss_mb = peak_rss_mb().unwrap_or(0.0);
     if summary.points_out != summary.points_in {
@@ -231,14 +286,21 @@ fn run_inner(ctx: &RunCtx, progress: ProgressFn) -> Result<Summary> {
     let (chunk_tx, chunk_rx) = bounded::<ReadMsg>(plan.chunk_depth);
     let (free_tx, free_rx) = bounded::<Vec<u8>>(plan.chunk_depth + 2);
     let (job_tx, job_rx) = bounded::<TileJob>(plan.workers);
-    let (res_tx, res_rx) = bounded::<Processed>(1);
+    let (res_tx, res_rx) = bounded::<ToWriter>(1);
     let layout = &set.layout;
     let tread = Mutex::new(0.0f64);
     let ttile = Mutex::new(0.0f64);
 
-    let mut summary = Summary::default();
     let twrite = Instant::now();
-    let mut write_s = 0.0;
+    let mut collector = Collector::new(
+        ctx.writer,
+        ctx.out_dir,
+        ctx.stitch
+            .as_ref()
+            .map(|st| (cfg.stitch.clone(), st.strip_m)),
+    );
+    // The tiler tells the stitcher which cells it releases, before their jobs leave.
+    let release_tx = ctx.stitch.is_some().then(|| res_tx.clone());
     std::thread::scope(|s| {
         // Reader.
         s.spawn(|| {
@@ -281,9 +343,17 @@ fn run_inner(ctx: &RunCtx, progress: ProgressFn) -> Result<Summary> {
         });
         // Tiler.
         s.spawn(|| {
+            let release_tx = release_tx;
             let t = Instant::now();
             let r = (|| -> Result<()> {
                 let mut tiler = Tiler::new(grid, layout, &set.files, spill_dir, plan.spill_bytes);
+                let announce = |tiler: &mut Tiler| -> bool {
+                    let cells = tiler.take_releases();
+                    match &release_tx {
+                        Some(tx) if !cells.is_empty() => tx.send(ToWriter::Released(cells)).is_ok(),
+                        _ => true,
+                    }
+                };
                 for msg in chunk_rx.iter() {
                     match msg {
                         ReadMsg::Chunk {
@@ -296,7 +366,11 @@ fn run_inner(ctx: &RunCtx, progress: ProgressFn) -> Result<Summary> {
                             max_open.fetch_max(tiler.open_tiles() as u64, Ordering::Relaxed);
                         }
                         ReadMsg::FileDone(f) => {
-                            for job in tiler.file_done(f)? {
+                            let jobs = tiler.file_done(f)?;
+                            if !announce(&mut tiler) {
+                                return Ok(());
+                            }
+                            for job in jobs {
                                 if job_tx.send(job).is_err() {
                                     return Ok(());
                                 }
@@ -307,7 +381,11 @@ fn run_inner(ctx: &RunCtx, progress: ProgressFn) -> Result<Summary> {
                 if failure.failed() {
                     return Ok(());
                 }
-                for job in tiler.finish()? {
+                let jobs = tiler.finish()?;
+                if !announce(&mut tiler) {
+                    return Ok(());
+                }
+                for job in jobs {
                     if job_tx.send(job).is_err() {
                         return Ok(());
                     }
@@ -326,7 +404,7 @@ fn run_inner(ctx: &RunCtx, progress: ProgressFn) -> Result<Summary> {
         // Workers.
         for _ in 0..plan.workers {
             let job_rx: Receiver<TileJob> = job_rx.clone();
-            let res_tx: Sender<Processed> = res_tx.clone();
+            let res_tx: Sender<ToWriter> = res_tx.clone();
             let failure = &failure;
             s.spawn(move || {
                 for job in job_rx.iter() {
@@ -342,46 +420,21 @@ fn run_inner(ctx: &RunCtx, progress: ProgressFn) -> Result<Summary> {
         }
         drop(res_tx);
         drop(job_rx);
-        // Writer (this thread): commits tiles in arrival order and keeps the books.
-        for p in res_rx.iter() {
+        // Writer (this thread): commits tiles (stitched ones once their ids are final) and
+        // keeps the books.
+        for msg in res_rx.iter() {
             if failure.failed() {
-                p.pending.abandon();
+                msg.abandon();
                 continue;
             }
-            let t = Instant::now();
-            let Processed {
-                name,
-                pending,
-                n_core,
-                buffer_points,
-                report,
-                split_root,
-            } = p;
-            match pending.commit() {
-                Ok(path) => {
-                    summary.points_out += n_core;
-                    if let Some(root) = split_root {
-                        if !summary.split_tiles.contains(&root) {
-                            summary.split_tiles.push(root);
-                        }
-                    }
-                    for (k, v) in &report.seconds {
-                        *summary.seconds.entry(format!("stage_{k}")).or_default() += v;
-                    }
-                    summary.tile_list.push(TileSummary {
-                        name,
-                        file: path
-                            .file_name()
-                            .map(|f| f.to_string_lossy().into_owned())
-                            .unwrap_or_default(),
-                        points: n_core,
-                        buffer_points,
-                        stats: report.stats,
-                    });
-                }
-                Err(e) => failure.set(e),
+            if let Err(e) = collector.handle(msg) {
+                failure.set(e);
             }
-            write_s += t.elapsed().as_secs_f64();
+        }
+        if !failure.failed() {
+            if let Err(e) = collector.finish() {
+                failure.set(e);
+            }
         }
     });
     if let Some(e) = failure
@@ -390,6 +443,15 @@ fn run_inner(ctx: &RunCtx, progress: ProgressFn) -> Result<Summary> {
         .unwrap_or_else(|p| p.into_inner())
     {
         return Err(e);
+    }
+    let Collector {
+        mut summary,
+        write_s,
+        stitch_s,
+        ..
+    } = collector;
+    if ctx.stitch.is_some() {
+        summary.seconds.insert("stitch".into(), stitch_s);
     }
     summary.buffer_m = buffer_m;
     summary.tiles = summary.tile_list.len();
@@ -412,7 +474,7 @@ fn run_inner(ctx: &RunCtx, progress: ProgressFn) -> Result<Summary> {
 
 /// Processes one job: splits it while it is too big for the budget, then loads and runs the
 /// stages on each resulting tile and compresses its core points to a temporary file.
-fn work(job: TileJob, ctx: &RunCtx, res_tx: &Sender<Processed>) -> Result<()> {
+fn work(job: TileJob, ctx: &RunCtx, res_tx: &Sender<ToWriter>) -> Result<()> {
     let RunCtx {
         set,
         out_dir,
@@ -421,8 +483,11 @@ fn work(job: TileJob, ctx: &RunCtx, res_tx: &Sender<Processed>) -> Result<()> {
         plan,
         stages,
         writer,
+        ref stitch,
     } = *ctx;
     let root = job.name.to_string();
+    let cell = (job.id.ix, job.id.iy);
+    let mut leaves = 0;
     let mut todo = vec![job];
     let mut was_split = false;
     while let Some(job) = todo.pop() {
@@ -452,6 +517,12 @@ fn work(job: TileJob, ctx: &RunCtx, res_tx: &Sender<Processed>) -> Result<()> {
         let name = tile.name.to_string();
         let n_core = tile.n_core;
         let buffer_points = (tile.len() - n_core) as u64;
+        let summary = match stitch {
+            Some(st) => Some(BorderSummary::build(&tile, st.strip_m, |pid| {
+                st.ordinal(pid)
+            })?),
+            None => None,
+        };
         let mut records = std::mem::take(&mut tile.records);
         records.truncate(n_core * set.layout.record_len);
         let t = Instant::now();
@@ -462,23 +533,35 @@ fn work(job: TileJob, ctx: &RunCtx, res_tx: &Sender<Processed>) -> Result<()> {
             ids: tile.segments.get(..n_core).unwrap_or(&[]),
             table,
         });
-        let pending = writer.prepare(out_dir, &name, records, seg)?;
+        let output = match (summary, seg) {
+            (Some(summary), Some(seg)) => TileOutput::Deferred(
+                writer.defer(spill_dir, &name, records, seg)?,
+                Box::new(summary),
+            ),
+            (_, seg) => TileOutput::Written(writer.prepare(out_dir, &name, records, seg)?),
+        };
         drop(tile);
         report
             .seconds
             .insert("compress".into(), t.elapsed().as_secs_f64());
         let p = Processed {
-            name,
-            pending,
-            n_core: n_core as u64,
-            buffer_points,
-            report,
-            split_root: was_split.then(|| root.clone()),
+            meta: TileMeta {
+                name,
+                n_core: n_core as u64,
+                buffer_points,
+                report,
+                split_root: was_split.then(|| root.clone()),
+            },
+            output,
         };
-        if let Err(e) = res_tx.send(p) {
-            e.into_inner().pending.abandon();
+        if let Err(e) = res_tx.send(ToWriter::Tile(Box::new(p))) {
+            e.into_inner().abandon();
             return Ok(());
         }
+        leaves += 1;
+    }
+    if stitch.is_some() {
+        let _ = res_tx.send(ToWriter::CellDone { cell, leaves });
     }
     Ok(())
 }

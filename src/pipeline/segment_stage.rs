@@ -9,7 +9,7 @@
 use super::stage::{Stage, TileReport};
 use crate::error::{Error, Result};
 use crate::model::{RecordLayout, SegmentRow, Tile};
-use crate::segment::{segment, SegParams};
+use crate::segment::{segment_at, SegParams};
 use serde::Deserialize;
 
 /// Which points take part in the segmentation.
@@ -131,14 +131,22 @@ impl Stage for SegmentStage {
                 })
                 .collect()
         });
-        let out =
-            segment(&tile.xyz, rgb.as_deref(), Some(&mask), &self.section.params).map_err(|e| {
-                Error::Stage {
-                    tile: tile.name.to_string(),
-                    stage: "segment",
-                    reason: e.to_string(),
-                }
-            })?;
+        // One origin for every tile of the run (the run layout's offsets), so neighbouring
+        // tiles compute the geometry of the points they share identically.
+        let t = &layout.transforms;
+        let origin = [t.x.offset, t.y.offset, t.z.offset];
+        let out = segment_at(
+            &tile.xyz,
+            rgb.as_deref(),
+            Some(&mask),
+            &self.section.params,
+            Some(origin),
+        )
+        .map_err(|e| Error::Stage {
+            tile: tile.name.to_string(),
+            stage: "segment",
+            reason: e.to_string(),
+        })?;
         let mut core_n = vec![0usize; out.segments.len() + 1];
         for &l in &out.labels[..tile.n_core] {
             core_n[l as usize] += 1;

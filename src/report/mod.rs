@@ -58,6 +58,9 @@ pub struct Summary {
     pub budget: Option<BudgetPlan>,
     /// Output point format and record length.
     pub point_format: u8,
+    /// Cross-tile stitching statistics (runs with the segment stage and stitching on).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub stitch: Option<crate::stitch::StitchStats>,
     /// Written tiles, in write order.
     pub tile_list: Vec<TileSummary>,
     /// MCAP inputs: decoding, georeferencing, skipped clouds and dropped points.

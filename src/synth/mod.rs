@@ -10,7 +10,7 @@ pub mod drive;
 pub mod lidar;
 pub mod scene;
 
-pub use scene::{generate_slab, segments, SceneParams, SegmentTruth, SynthPoint};
+pub use scene::{generate_slab, segments, Blocks, SceneParams, SegmentTruth, SynthPoint};
 
 use crate::error::{Error, Result};
 use crate::io::output::{tmp_path, write_atomic};
@@ -101,6 +101,12 @@ pub fn write_scene(params: &SceneParams, dir: &Path, file_length_m: f64) -> Resu
         return Err(Error::Config(format!(
             "synth: length_m must be positive, got {}",
             params.length_m
+        )));
+    }
+    if !params.blocks.is_valid() {
+        return Err(Error::Config(format!(
+            "synth: building blocks need 1 <= min_building_m <= max_building_m and min_building_m <= block_m (finite), got {:?}",
+            params.blocks
         )));
     }
     // Slab bounds on whole metres keep the scene independent of the file length.

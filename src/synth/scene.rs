@@ -52,6 +52,43 @@ pub struct SceneParams {
     pub noise_m: f64,
     /// Standard deviation of the per-channel colour noise in 8-bit units.
     pub colour_noise: f64,
+    /// Building blocks along the street.
+    pub blocks: Blocks,
+}
+
+/// Building blocks: each side of the street is cut into blocks of `block_m`, filled with
+/// buildings whose lengths are drawn from `min_building_m..max_building_m` (each with its own
+/// colour). Long blocks of long buildings give terraces whose facades span several tiles.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Blocks {
+    /// Block length along x (m).
+    pub block_m: f64,
+    /// Shortest building (m); a block ends when less than this is left.
+    pub min_building_m: f64,
+    /// Longest building (m).
+    pub max_building_m: f64,
+}
+
+impl Blocks {
+    /// 1 ≤ min ≤ max, min ≤ block, all finite.
+    pub fn is_valid(&self) -> bool {
+        self.min_building_m >= 1.0
+            && self.max_building_m >= self.min_building_m
+            && self.block_m >= self.min_building_m
+            && self.block_m.is_finite()
+            && self.max_building_m.is_finite()
+    }
+}
+
+impl Default for Blocks {
+    /// 40 m blocks of 8–25 m buildings.
+    fn default() -> Self {
+        Blocks {
+            block_m: 40.0,
+            min_building_m: 8.0,
+            max_building_m: 25.0,
+        }
+    }
 }
 
 impl Default for SceneParams {
@@ -65,6 +102,7 @@ impl Default for SceneParams {
             sensor_height_m: 2.5,
             noise_m: 0.005,
             colour_noise: 4.0,
+            blocks: Blocks::default(),
         }
     }
 }
@@ -140,7 +178,8 @@ pub fn generate_slab(params: &SceneParams, x0: f64, x1: f64, out: &mut Vec<Synth
     ]
     .iter()
     .all(|v| v.is_finite())
-        && p.points_per_m2 > 0.0;
+        && p.points_per_m2 > 0.0
+        && p.blocks.is_valid();
     if x0.is_nan() || x1.is_nan() || lo >= hi || !ok {
         return;
     }
@@ -151,6 +190,7 @@ pub fn generate_slab(params: &SceneParams, x0: f64, x1: f64, out: &mut Vec<Synth
     out.reserve(((hi - lo) * p.points_per_m2 * 37.0) as usize);
     let mut world = World {
         seed: p.seed,
+        blocks: p.blocks,
         cache: Vec::new(),
     };
     let mut em = Em::new(out, lo, hi, p);
@@ -211,9 +251,9 @@ pub fn segments(params: &SceneParams) -> Vec<SegmentTruth> {
         add(K_DASH, k, ground_plane(K_DASH), xa, xa + DASH_LEN);
     }
     let mut bs = Vec::new();
-    for b in 0..((len + pad) / BUILD_BLOCK).ceil() as i64 {
+    for b in 0..((len + pad) / params.blocks.block_m).ceil() as i64 {
         for left in [true, false] {
-            block_buildings(params.seed, left, b, &mut bs);
+            block_buildings(params.seed, left, b, &params.blocks, &mut bs);
         }
     }
     for b in &bs {

@@ -12,6 +12,7 @@ pub use spill::{Part, SpillSet, TileMap};
 use crate::error::Result;
 use crate::io::InputFile;
 use crate::model::{point_id, RecordLayout, Rect, TileId, TileName};
+use crate::stitch::CellRelease;
 use std::path::{Path, PathBuf};
 
 /// A complete tile waiting on disk for a worker.
@@ -53,6 +54,8 @@ pub struct Tiler<'a> {
     open: TileMap<OpenTile>,
     /// The last core tile seen: consecutive points almost always share it.
     last: Option<(i64, i64, usize)>,
+    /// Cells released since the last [`Tiler::take_releases`] (for the stitcher).
+    releases: Vec<CellRelease>,
 }
 
 fn reach(file: &InputFile, layout: &RecordLayout) -> Rect {
@@ -80,6 +83,7 @@ impl<'a> Tiler<'a> {
             spill_dir: spill_dir.to_path_buf(),
             open: TileMap::default(),
             last: None,
+            releases: Vec::new(),
         }
     }
 
@@ -176,10 +180,35 @@ impl<'a> Tiler<'a> {
         self.release(v)
     }
 
+    /// The cells released by the calls to [`Tiler::file_done`] and [`Tiler::finish`] since
+    /// the last call, each with the neighbouring cells that were still open at its release:
+    /// every cell that can share overlap points with a released cell is open at that moment
+    /// or was released before (see [`crate::stitch::frontier`]).
+    pub fn take_releases(&mut self) -> Vec<CellRelease> {
+        std::mem::take(&mut self.releases)
+    }
+
     fn release(&mut self, ids: Vec<TileId>) -> Result<Vec<TileJob>> {
         let mut jobs = Vec::new();
         self.last = None;
-        for id in ids {
+        // Neighbours are listed before any tile of the batch leaves `open`, so tiles released
+        // together list each other.
+        let open_neighbours: Vec<Vec<(i64, i64)>> = ids
+            .iter()
+            .map(|id| {
+                let mut v = Vec::new();
+                for dy in -1..=1i64 {
+                    for dx in -1..=1i64 {
+                        let n = TileId::grid(id.ix + dx, id.iy + dy);
+                        if (dx, dy) != (0, 0) && self.open.contains_key(&n) {
+                            v.push((n.ix, n.iy));
+                        }
+                    }
+                }
+                v
+            })
+            .collect();
+        for (id, open_neighbours) in ids.into_iter().zip(open_neighbours) {
             self.open.remove(&id);
             let (n_core, n_buf) = self.spill.finish(id)?;
             let core = self.grid.cell_rect(id.ix, id.iy);
@@ -196,6 +225,11 @@ impl<'a> Tiler<'a> {
                 n_core,
                 n_buf,
             };
+            self.releases.push(CellRelease {
+                cell: (id.ix, id.iy),
+                has_core: n_core > 0,
+                open_neighbours,
+            });
             if n_core == 0 {
                 // Only buffer points fell here: nothing to write, the points are written by
                 // their own core tiles.

@@ -37,9 +37,10 @@ impl Near {
         let lat = |pitch: f64| (lo / pitch).floor() as i64..=(hi / pitch).floor() as i64;
         let mut left = Vec::new();
         let mut right = Vec::new();
-        for b in lat(BUILD_BLOCK) {
-            block_buildings(seed, true, b, &mut left);
-            block_buildings(seed, false, b, &mut right);
+        let blocks = &p.scene.blocks;
+        for b in lat(blocks.block_m) {
+            block_buildings(seed, true, b, blocks, &mut left);
+            block_buildings(seed, false, b, blocks, &mut right);
         }
         left.sort_by(|a, b| a.xa.total_cmp(&b.xa));
         right.sort_by(|a, b| a.xa.total_cmp(&b.xa));

@@ -19,7 +19,6 @@ pub const FACADE_R: f64 = -7.0;
 pub const WIN_RECESS: f64 = 0.1;
 pub const DOOR_RECESS: f64 = 0.15;
 pub const ROAD_BLOCK: f64 = 60.0;
-pub const BUILD_BLOCK: f64 = 40.0;
 pub const DASH_PITCH: f64 = 9.0;
 pub const DASH_LEN: f64 = 3.0;
 pub const TREE_PITCH: f64 = 12.0;
@@ -276,18 +275,27 @@ pub const FACADE_COLOURS: [[f64; 3]; 5] = [
     [200.0, 170.0, 110.0],
 ];
 
-/// Buildings of one 40 m block on one side (up to 8, separated by alleys or adjoining).
-pub fn block_buildings(seed: u64, left: bool, b: i64, out: &mut Vec<Building>) {
+/// Buildings of one block (default 40 m) on one side (up to 8, separated by alleys or
+/// adjoining), lengths drawn from `blocks`.
+pub fn block_buildings(
+    seed: u64,
+    left: bool,
+    b: i64,
+    blocks: &super::Blocks,
+    out: &mut Vec<Building>,
+) {
     if b < 0 {
         return;
     }
     let side = u64::from(left);
     let mut r = Rng(hash(seed, R_BLOCK + 10 * side, b));
-    let x_end = (b + 1) as f64 * BUILD_BLOCK;
-    let mut x = b as f64 * BUILD_BLOCK + r.range(0.0, 3.0);
+    let x_end = (b + 1) as f64 * blocks.block_m;
+    let mut x = b as f64 * blocks.block_m + r.range(0.0, 3.0);
     for j in 0..8u64 {
-        let len = r.range(8.0, 25.0).min(x_end - x);
-        if len < 8.0 {
+        let len = r
+            .range(blocks.min_building_m, blocks.max_building_m)
+            .min(x_end - x);
+        if len < blocks.min_building_m {
             break;
         }
         let y = if left { FACADE_L } else { FACADE_R };
@@ -500,6 +508,7 @@ pub struct Cell {
 /// Small cache of building blocks (generated once per slab, not per cell).
 pub struct World {
     pub seed: u64,
+    pub blocks: super::Blocks,
     pub cache: Vec<(bool, i64, Vec<Building>)>,
 }
 
@@ -509,7 +518,7 @@ impl World {
             Some(p) => p,
             None => {
                 let mut v = Vec::new();
-                block_buildings(self.seed, left, b, &mut v);
+                block_buildings(self.seed, left, b, &self.blocks, &mut v);
                 if self.cache.len() >= 8 {
                     self.cache.remove(0);
                 }
@@ -529,7 +538,7 @@ impl World {
         let lat = |lo: f64, hi: f64, p: f64| (lo / p).floor() as i64..=(hi / p).floor() as i64;
         for left in [true, false] {
             let reach = if left { 0.0 } else { 8.0 };
-            for b in lat(x0 - reach, x1, BUILD_BLOCK) {
+            for b in lat(x0 - reach, x1, self.blocks.block_m) {
                 let v: Vec<Building> = (self.block(left, b).iter())
                     .filter(|g| g.xb > x0 - reach && g.xa < x1)
                     .copied()

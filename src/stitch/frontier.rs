@@ -1,0 +1,461 @@
+//! The streaming stitcher: receives cell releases, tile summaries and cell completions in any
+//! order the pipeline produces them, matches neighbouring tiles, and hands back tiles whose
+//! segments all have final global ids — holding only the frontier.
+//!
+//! **When can a tile close?** Its summary is needed until every tile that shares overlap
+//! points with it has arrived. Such a tile lies in the same grid cell (quadtree siblings) or
+//! in one of the 8 neighbouring cells, and it shares points *inside this tile's core+buffer
+//! region*. The tiler releases a cell only after every input reaching that region has been
+//! read, and it opens a cell as soon as one of its core *or buffer* points is binned; so when
+//! a cell is released, every cell that can share overlap points with it is either still open
+//! in the tiler (the release says which) or was released before (the stitcher still knows it,
+//! see below). A cell's tiles close once the cell and all those *relevant* cells are complete
+//! (every leaf tile arrived, or released without core points).
+//!
+//! Cell entries are reference-counted by the open cells that list them, so a cell is
+//! forgotten only when no later release can name it as a relevant neighbour (a relevant later
+//! cell keeps it alive until that cell is complete). Memory therefore follows the frontier
+//! of open cells, not the run.
+
+use super::components::{node, split, Components, Final};
+use super::pairs::match_pair;
+use super::summary::BorderSummary;
+use super::{CellKey, StitchError, StitchParams, StitchStats};
+use std::collections::{HashMap, HashSet};
+
+/// The tiler's release of one grid cell.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CellRelease {
+    /// The cell.
+    pub cell: CellKey,
+    /// Whether it has core points (it becomes a worker job) or not (nothing will arrive).
+    pub has_core: bool,
+    /// Neighbouring cells (of the 8) still open in the tiler at release time.
+    pub open_neighbours: Vec<CellKey>,
+}
+
+/// A tile whose segments all have their global ids.
+#[derive(Debug)]
+pub struct Ready<P> {
+    /// What the caller attached to the tile.
+    pub payload: P,
+    /// Global id per local label `l` at index `l - 1` (0 for segments without core points).
+    pub ids: Vec<u64>,
+}
+
+#[derive(Debug, Default)]
+struct CellState {
+    released: bool,
+    done: bool,
+    closed: bool,
+    refs: u32,
+    relevant: Vec<CellKey>,
+    tiles: Vec<u32>,
+}
+
+#[derive(Debug)]
+struct TileState<P> {
+    summary: Option<BorderSummary>,
+    ids: Vec<u64>,
+    /// Per label: whether the segment has core points (is written by this tile).
+    core: Vec<bool>,
+    nodes: Vec<u32>,
+    pending: u32,
+    closed: bool,
+    waiting: bool,
+    payload: Option<P>,
+}
+
+fn neighbours8(c: CellKey) -> impl Iterator<Item = CellKey> {
+    (-1..=1i64)
+        .flat_map(move |dy| (-1..=1i64).map(move |dx| (c.0 + dx, c.1 + dy)))
+        .filter(move |&n| n != c)
+}
+
+/// The stitcher. `P` is whatever the caller needs to write a tile once it is ready.
+#[derive(Debug)]
+pub struct Stitcher<P> {
+    params: StitchParams,
+    strip_m: f64,
+    cells: HashMap<CellKey, CellState>,
+    tiles: HashMap<u32, TileState<P>>,
+    next_slot: u32,
+    comps: Components,
+    ready: Vec<Ready<P>>,
+    stats: StitchStats,
+    open_tiles: u64,
+    held_records: u64,
+    held_bytes: u64,
+    waiting: u64,
+}
+
+impl<P> Stitcher<P> {
+    /// A stitcher for tiles segmented `strip_m` beyond their cores.
+    pub fn new(params: StitchParams, strip_m: f64) -> Self {
+        let stats = StitchStats {
+            strip_m,
+            min_shared_points: params.min_shared_points,
+            majority_fraction: params.majority_fraction,
+            ..Default::default()
+        };
+        Stitcher {
+            params,
+            strip_m,
+            cells: HashMap::new(),
+            tiles: HashMap::new(),
+            next_slot: 0,
+            comps: Components::default(),
+            ready: Vec::new(),
+            stats,
+            open_tiles: 0,
+            held_records: 0,
+            held_bytes: 0,
+            waiting: 0,
+        }
+    }
+
+    /// Statistics so far.
+    pub fn stats(&self) -> &StitchStats {
+        &self.stats
+    }
+
+    /// Cell entries held (frontier bookkeeping; for tests of boundedness).
+    pub fn cells_held(&self) -> usize {
+        self.cells.len()
+    }
+
+    /// Tiles whose summaries are held right now.
+    pub fn open_tiles(&self) -> u64 {
+        self.open_tiles
+    }
+
+    /// Tiles whose ids are all final, in the order they became ready.
+    pub fn take_ready(&mut self) -> Vec<Ready<P>> {
+        std::mem::take(&mut self.ready)
+    }
+
+    /// The tiler released a batch of cells. Cells released together may list each other as
+    /// open neighbours, so cells with core points are registered first: an empty cell of the
+    /// batch must find the entries that wait for it.
+    pub fn released(&mut self, batch: &[CellRelease]) {
+        for r in batch.iter().filter(|r| r.has_core) {
+            self.release_one(r);
+        }
+        for r in batch.iter().filter(|r| !r.has_core) {
+            self.release_one(r);
+        }
+    }
+
+    fn release_one(&mut self, r: &CellRelease) {
+        if !r.has_core {
+            if let Some(e) = self.cells.get_mut(&r.cell) {
+                e.released = true;
+                e.done = true;
+                e.closed = true;
+                self.cell_completed(r.cell);
+            }
+            return;
+        }
+        let mut relevant: Vec<CellKey> = r
+            .open_neighbours
+            .iter()
+            .copied()
+            .filter(|&n| n != r.cell)
+            .chain(neighbours8(r.cell).filter(|n| self.cells.contains_key(n)))
+            .collect();
+        relevant.sort_unstable();
+        relevant.dedup();
+        for d in &relevant {
+            self.cells.entry(*d).or_default().refs += 1;
+        }
+        let e = self.cells.entry(r.cell).or_default();
+        e.released = true;
+        e.relevant = relevant;
+    }
+
+    /// A worker processed a tile of a released cell. `summary` is its border summary.
+    pub fn add_tile(&mut self, summary: BorderSummary, payload: P) -> Result<(), StitchError> {
+        summary.validate()?;
+        let cell = (summary.tile.ix, summary.tile.iy);
+        match self.cells.get(&cell) {
+            Some(e) if e.released && !e.done => {}
+            _ => {
+                return Err(StitchError::UnknownCell {
+                    tile: summary.name.clone(),
+                    cell,
+                })
+            }
+        }
+        let slot = self.next_slot;
+        self.next_slot += 1;
+        let n = summary.labels();
+        let mut has_records = vec![false; n];
+        for r in summary.inner.iter().chain(&summary.outer) {
+            has_records[r.label as usize - 1] = true;
+        }
+        // Segments without border records cannot meet another tile: final at once. The rest
+        // become union–find nodes.
+        let mut ids = vec![0u64; n];
+        let mut nodes = Vec::new();
+        for (i, (&a, &rec)) in summary.anchors.iter().zip(&has_records).enumerate() {
+            if a != u64::MAX {
+                self.stats.local_segments += 1;
+            }
+            if rec {
+                self.comps.insert(node(slot, i as u32 + 1), a);
+                nodes.push(i as u32 + 1);
+            } else if a != u64::MAX {
+                ids[i] = a + 1;
+                self.stats.global_segments += 1;
+                self.stats.max_tiles_per_segment = self.stats.max_tiles_per_segment.max(1);
+            }
+        }
+        // Match against every arrived, still open tile nearby (same cell or the 8 around).
+        let reach = summary.core.expanded(self.strip_m);
+        let mut others: Vec<u32> = std::iter::once(cell)
+            .chain(neighbours8(cell))
+            .filter_map(|c| self.cells.get(&c))
+            .flat_map(|c| c.tiles.iter().copied())
+            .collect();
+        others.sort_unstable();
+        for o in others {
+            let Some(other) = self.tiles.get(&o).and_then(|t| t.summary.as_ref()) else {
+                continue;
+            };
+            if !reach.intersects(&other.core) {
+                continue;
+            }
+            let m = match_pair(&summary, other, self.strip_m, &self.params);
+            if m.shared_points == 0 && m.candidates == 0 {
+                continue;
+            }
+            self.stats.tile_pairs += 1;
+            self.stats.shared_points += m.shared_points;
+            self.stats.candidate_pairs += m.candidates;
+            self.stats.rejected_pairs += m.rejected;
+            self.stats.accepted_pairs += m.merge.len() as u64;
+            for (la, lb) in m.merge {
+                if self.comps.union(node(slot, la), node(o, lb)) {
+                    self.stats.merges += 1;
+                }
+            }
+        }
+        self.stats.tiles += 1;
+        self.open_tiles += 1;
+        self.held_records += summary.records() as u64;
+        self.held_bytes += summary.bytes() as u64;
+        let s = &mut self.stats;
+        s.frontier_tiles_max = s.frontier_tiles_max.max(self.open_tiles);
+        s.frontier_records_max = s.frontier_records_max.max(self.held_records);
+        s.frontier_bytes_max = s.frontier_bytes_max.max(self.held_bytes);
+        s.open_nodes_max = s.open_nodes_max.max(self.comps.len() as u64);
+        let core = summary.anchors.iter().map(|&a| a != u64::MAX).collect();
+        self.tiles.insert(
+            slot,
+            TileState {
+                summary: Some(summary),
+                ids,
+                core,
+                pending: nodes.len() as u32,
+                nodes,
+                closed: false,
+                waiting: false,
+                payload: Some(payload),
+            },
+        );
+        if let Some(e) = self.cells.get_mut(&cell) {
+            e.tiles.push(slot);
+        }
+        Ok(())
+    }
+
+    /// A worker finished every leaf tile of `cell` (`leaves` of them were sent).
+    pub fn cell_done(&mut self, cell: CellKey, leaves: usize) -> Result<(), StitchError> {
+        let e = match self.cells.get_mut(&cell) {
+            Some(e) if e.released && !e.done => e,
+            _ => {
+                return Err(StitchError::UnknownCell {
+                    tile: format!("(cell completion, {leaves} tiles)"),
+                    cell,
+                })
+            }
+        };
+        if e.tiles.len() != leaves {
+            return Err(StitchError::BadSummary {
+                tile: format!("cell {cell:?}"),
+                reason: format!(
+                    "{leaves} tiles announced, {} arrived before completion",
+                    e.tiles.len()
+                ),
+            });
+        }
+        e.done = true;
+        self.cell_completed(cell);
+        Ok(())
+    }
+
+    /// Everything was released and processed: closes all remaining tiles. Fails if a cell
+    /// never completed (a tile would otherwise be written with wrong ids).
+    pub fn finish(&mut self) -> Result<(), StitchError> {
+        let mut incomplete: Vec<CellKey> = self
+            .cells
+            .iter()
+            .filter(|(_, e)| !e.done)
+            .map(|(k, _)| *k)
+            .collect();
+        if !incomplete.is_empty() {
+            incomplete.sort_unstable();
+            return Err(StitchError::Incomplete(incomplete.len(), incomplete[0]));
+        }
+        let mut keys: Vec<CellKey> = self.cells.keys().copied().collect();
+        keys.sort_unstable();
+        for k in keys {
+            self.try_close(k);
+        }
+        if let Some(t) = self.tiles.values().next() {
+            return Err(StitchError::BadSummary {
+                tile: t
+                    .summary
+                    .as_ref()
+                    .map(|s| s.name.clone())
+                    .unwrap_or_default(),
+                reason: format!(
+                    "{} tile(s) still waiting for final ids at the end of the run",
+                    self.tiles.len()
+                ),
+            });
+        }
+        Ok(())
+    }
+
+    fn cell_completed(&mut self, c: CellKey) {
+        self.try_close(c);
+        for n in neighbours8(c).collect::<Vec<_>>() {
+            self.try_close(n);
+        }
+    }
+
+    fn try_close(&mut self, c: CellKey) {
+        let Some(e) = self.cells.get(&c) else {
+            return;
+        };
+        if !e.released || !e.done || e.closed {
+            return;
+        }
+        if e.relevant
+            .iter()
+            .any(|d| self.cells.get(d).is_some_and(|d| !d.done))
+        {
+            return;
+        }
+        let Some(e) = self.cells.get_mut(&c) else {
+            return;
+        };
+        e.closed = true;
+        let tiles = std::mem::take(&mut e.tiles);
+        let relevant = std::mem::take(&mut e.relevant);
+        for slot in tiles {
+            self.close_tile(slot);
+        }
+        for d in relevant {
+            if let Some(de) = self.cells.get_mut(&d) {
+                de.refs = de.refs.saturating_sub(1);
+            }
+            self.maybe_forget(d);
+        }
+        self.maybe_forget(c);
+    }
+
+    fn maybe_forget(&mut self, c: CellKey) {
+        if self.cells.get(&c).is_some_and(|e| e.closed && e.refs == 0) {
+            self.cells.remove(&c);
+        }
+    }
+
+    fn close_tile(&mut self, slot: u32) {
+        let Some(t) = self.tiles.get_mut(&slot) else {
+            return;
+        };
+        t.closed = true;
+        if let Some(s) = t.summary.take() {
+            self.open_tiles -= 1;
+            self.held_records -= s.records() as u64;
+            self.held_bytes -= s.bytes() as u64;
+        }
+        let nodes = std::mem::take(&mut t.nodes);
+        for l in nodes {
+            if let Some(f) = self.comps.close(node(slot, l)) {
+                self.finalise(f);
+            }
+        }
+        self.maybe_ready(slot);
+        if let Some(t) = self.tiles.get_mut(&slot) {
+            // Still here: some component of this tile can still grow through other tiles.
+            t.waiting = true;
+            self.waiting += 1;
+            self.stats.waiting_tiles_max = self.stats.waiting_tiles_max.max(self.waiting);
+        }
+    }
+
+    fn finalise(&mut self, f: Final) {
+        let id = if f.min_ordinal == u64::MAX {
+            0
+        } else {
+            f.min_ordinal + 1
+        };
+        if id != 0 {
+            // Tiles that write points of the segment (pieces seen only in a buffer do not
+            // make a segment cross a border).
+            let tiles: HashSet<u32> = f
+                .members
+                .iter()
+                .map(|&m| split(m))
+                .filter(|&(slot, label)| {
+                    self.tiles
+                        .get(&slot)
+                        .and_then(|t| t.core.get(label as usize - 1))
+                        .copied()
+                        .unwrap_or(false)
+                })
+                .map(|(slot, _)| slot)
+                .collect();
+            let s = &mut self.stats;
+            s.global_segments += 1;
+            if tiles.len() >= 2 {
+                s.segments_crossing_borders += 1;
+            }
+            s.max_tiles_per_segment = s.max_tiles_per_segment.max(tiles.len() as u64);
+        }
+        for m in f.members {
+            let (slot, label) = split(m);
+            if let Some(t) = self.tiles.get_mut(&slot) {
+                if let Some(v) = t.ids.get_mut(label as usize - 1) {
+                    *v = id;
+                }
+                t.pending = t.pending.saturating_sub(1);
+            }
+            self.maybe_ready(slot);
+        }
+    }
+
+    fn maybe_ready(&mut self, slot: u32) {
+        if !self
+            .tiles
+            .get(&slot)
+            .is_some_and(|t| t.closed && t.pending == 0)
+        {
+            return;
+        }
+        if let Some(mut t) = self.tiles.remove(&slot) {
+            if t.waiting {
+                self.waiting -= 1;
+            }
+            if let Some(payload) = t.payload.take() {
+                self.ready.push(Ready {
+                    payload,
+                    ids: t.ids,
+                });
+            }
+        }
+    }
+}

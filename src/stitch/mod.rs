@@ -1,0 +1,155 @@
+//! Cross-tile stitching: one global segment id per real-world segment, at fixed memory.
+//!
+//! Every tile is segmented on its core plus a strip of `strip_m` (`segment.buffer_m`, capped
+//! by the tiling buffer) beyond it, and every point's result comes from its **core** tile. So
+//! where two tiles overlap, each overlap point carries two labels: the one from its core tile
+//! and the one from the tile that saw it as buffer. Two local segments are the same real
+//! segment when they share enough overlap points ([`pairs`]); a union–find over
+//! (tile, local segment) nodes ([`components`]) joins them transitively.
+//!
+//! The flow, all on the writer thread ([`Stitcher`]):
+//! 1. the tiler announces each released grid cell and the cells that could share overlap
+//!    points with it (those open in the tiler at that moment, see [`CellRelease`]);
+//! 2. a worker sends, per processed tile, a [`BorderSummary`]: its labelled points within
+//!    `strip_m` of its core edges (inside and outside), keyed by global point id, and the
+//!    smallest point ordinal of each local segment; it writes the tile's core points with
+//!    local ids to a temporary file;
+//! 3. when both tiles of a neighbouring pair have arrived, their summaries are matched and
+//!    segments unioned; when a cell and every cell relevant to it are complete, its tiles
+//!    *close* (their summaries are dropped: the frontier); a component whose tiles are all
+//!    closed can no longer grow, is final and gets its id;
+//! 4. a closed tile whose segments are all final is handed back to be written with global ids
+//!    (its temporary file is read once).
+//!
+//! **Global ids** are `1 +` the smallest point ordinal (position of the point in the run's
+//! inputs, in input order) among the core points of the component. They depend only on which
+//! points form the segment — not on threads, scheduling or, when the segmentation agrees, on
+//! the tile size.
+
+pub mod components;
+pub mod frontier;
+pub mod pairs;
+pub mod summary;
+
+pub use frontier::{CellRelease, Ready, Stitcher};
+pub use summary::{BorderRecord, BorderSummary};
+
+use serde::{Deserialize, Serialize};
+
+/// A grid cell (column, row): the unit the tiler releases; quadtree leaves share their cell.
+pub type CellKey = (i64, i64);
+
+/// `[stitch]` configuration section.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct StitchParams {
+    /// Stitch segments across tile borders when the segment stage runs (false: segment ids
+    /// stay local to each tile, 1..=N).
+    pub enabled: bool,
+    /// Two segments of neighbouring tiles merge only if they share at least this many
+    /// overlap points …
+    pub min_shared_points: usize,
+    /// … and more than this fraction of *each* segment's overlap points (its points in the
+    /// overlap of the two tiles); 0.5 = a strict majority of both, one-to-one. See [`pairs`].
+    pub majority_fraction: f64,
+}
+
+impl Default for StitchParams {
+    fn default() -> Self {
+        StitchParams {
+            enabled: true,
+            min_shared_points: 5,
+            majority_fraction: 0.5,
+        }
+    }
+}
+
+impl StitchParams {
+    /// Checks ranges; says which key is wrong.
+    pub fn validate(&self) -> Result<(), String> {
+        if self.min_shared_points == 0 {
+            return Err("stitch.min_shared_points must be ≥ 1".into());
+        }
+        if !(self.majority_fraction > 0.0 && self.majority_fraction < 1.0) {
+            return Err(format!(
+                "stitch.majority_fraction must be in (0, 1), got {}",
+                self.majority_fraction
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Errors of the stitcher: violated invariants of the message flow or of a summary (bugs or
+/// corrupted state, never user input), reported instead of writing wrong ids.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum StitchError {
+    /// A tile arrived for a cell the tiler never released.
+    #[error("stitch: tile {tile} arrived for cell {cell:?}, which was not released")]
+    UnknownCell {
+        /// Tile name.
+        tile: String,
+        /// Its cell.
+        cell: CellKey,
+    },
+    /// A summary is inconsistent with its tile.
+    #[error("stitch: tile {tile}: {reason}")]
+    BadSummary {
+        /// Tile name.
+        tile: String,
+        /// What is wrong.
+        reason: String,
+    },
+    /// The run ended with cells that never completed.
+    #[error("stitch: {0} cell(s) never completed (first {1:?})")]
+    Incomplete(usize, CellKey),
+    /// A segment id does not fit the output attribute.
+    #[error("stitch: segment id {0} does not fit the 32-bit segment_id attribute")]
+    IdOverflow(u64),
+}
+
+/// Stitching statistics (the `stitch` object of `summary.json`).
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct StitchStats {
+    /// Overlap strip width used, metres.
+    pub strip_m: f64,
+    /// The merge thresholds used.
+    pub min_shared_points: usize,
+    /// The merge thresholds used.
+    pub majority_fraction: f64,
+    /// Tiles stitched.
+    pub tiles: u64,
+    /// Neighbouring tile pairs whose overlaps were matched.
+    pub tile_pairs: u64,
+    /// Overlap points labelled by both tiles of a pair.
+    pub shared_points: u64,
+    /// Segment pairs sharing at least one overlap point.
+    pub candidate_pairs: u64,
+    /// Candidate pairs that passed the thresholds.
+    pub accepted_pairs: u64,
+    /// Candidate pairs below the thresholds (kept apart).
+    pub rejected_pairs: u64,
+    /// Unions that joined two different components.
+    pub merges: u64,
+    /// Local segments (with core points) across all tiles.
+    pub local_segments: u64,
+    /// Final global segments with core points.
+    pub global_segments: u64,
+    /// Global segments with core points in two or more tiles (crossing a border).
+    pub segments_crossing_borders: u64,
+    /// Largest number of tiles a global segment has core points in.
+    pub max_tiles_per_segment: u64,
+    /// Most tiles whose border summaries were held at once (the frontier).
+    pub frontier_tiles_max: u64,
+    /// Most border records held at once.
+    pub frontier_records_max: u64,
+    /// Most bytes of border summaries held at once.
+    pub frontier_bytes_max: u64,
+    /// Most union–find nodes (segments of components not yet final) held at once.
+    pub open_nodes_max: u64,
+    /// Most closed tiles waiting for a component to become final before being written.
+    pub waiting_tiles_max: u64,
+}
+
+#[cfg(test)]
+mod tests;

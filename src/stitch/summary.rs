@@ -1,0 +1,214 @@
+//! Border summaries: what one segmented tile tells the stitcher — its labelled points near the
+//! core edges (both sides) and an anchor per local segment — and nothing else.
+
+use super::StitchError;
+use crate::model::{Rect, Tile, TileId};
+
+/// One labelled point near a tile's core edge.
+///
+/// Position is kept relative to the tile's core corner as `f32` (sub-millimetre up to 100 km
+/// from the corner, far finer than needed: it only decides in which neighbour's overlap a
+/// point lies), 24 bytes a record.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BorderRecord {
+    /// Global point id (input file << 40 | index).
+    pub pid: u64,
+    /// Local segment label (≥ 1).
+    pub label: u32,
+    /// x − core.x0.
+    pub dx: f32,
+    /// y − core.y0.
+    pub dy: f32,
+}
+
+/// A tile's border summary.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BorderSummary {
+    /// The tile.
+    pub tile: TileId,
+    /// Its printable name (errors, logs).
+    pub name: String,
+    /// Its core rectangle.
+    pub core: Rect,
+    /// Per local label `l` (index `l - 1`): the smallest ordinal of its core points, or
+    /// `u64::MAX` for a segment with buffer points only.
+    pub anchors: Vec<u64>,
+    /// Labelled core points within `strip_m` of the core edge.
+    pub inner: Vec<BorderRecord>,
+    /// Labelled buffer points (all within `strip_m` of the core: only those are segmented).
+    pub outer: Vec<BorderRecord>,
+}
+
+impl BorderSummary {
+    /// Builds the summary of a segmented tile. `ordinal` maps a global point id to the point's
+    /// position in the run's inputs (dense, deterministic).
+    pub fn build(
+        tile: &Tile,
+        strip_m: f64,
+        ordinal: impl Fn(u64) -> u64,
+    ) -> Result<Self, StitchError> {
+        let bad = |reason: String| StitchError::BadSummary {
+            tile: tile.name.to_string(),
+            reason,
+        };
+        if tile.segments.len() != tile.len() || tile.xyz.len() != tile.len() {
+            return Err(bad(format!(
+                "{} segment labels and {} coordinates for {} points",
+                tile.segments.len(),
+                tile.xyz.len(),
+                tile.len()
+            )));
+        }
+        if tile.n_core > tile.len() {
+            return Err(bad(format!(
+                "{} core points of {}",
+                tile.n_core,
+                tile.len()
+            )));
+        }
+        let n_labels = tile.segments.iter().copied().max().unwrap_or(0) as usize;
+        let mut anchors = vec![u64::MAX; n_labels];
+        let core = tile.core;
+        // Core points farther than strip_m from every edge cannot lie in any neighbour's
+        // segmented zone. A hair of slack keeps points exactly on the strip's edge (the
+        // neighbours' zones are half-open; exact geometry is applied when pairs are matched).
+        let inside = core.expanded(-(strip_m + 1e-6));
+        let record = |i: usize, label: u32| BorderRecord {
+            pid: tile.ids[i],
+            label,
+            dx: (tile.xyz[i][0] - core.x0) as f32,
+            dy: (tile.xyz[i][1] - core.y0) as f32,
+        };
+        let mut inner = Vec::new();
+        let mut outer = Vec::new();
+        for (i, &label) in tile.segments.iter().enumerate() {
+            if label == 0 {
+                continue;
+            }
+            let [x, y, _] = tile.xyz[i];
+            if i < tile.n_core {
+                let a = &mut anchors[label as usize - 1];
+                *a = (*a).min(ordinal(tile.ids[i]));
+                if !(inside.x0 < inside.x1 && inside.y0 < inside.y1 && inside.contains(x, y)) {
+                    inner.push(record(i, label));
+                }
+            } else {
+                outer.push(record(i, label));
+            }
+        }
+        inner.shrink_to_fit();
+        outer.shrink_to_fit();
+        Ok(BorderSummary {
+            tile: tile.id,
+            name: tile.name.to_string(),
+            core,
+            anchors,
+            inner,
+            outer,
+        })
+    }
+
+    /// Number of local labels (1..=n).
+    pub fn labels(&self) -> usize {
+        self.anchors.len()
+    }
+
+    /// Absolute xy of a record of this tile.
+    #[inline]
+    pub fn position(&self, r: &BorderRecord) -> (f64, f64) {
+        (self.core.x0 + r.dx as f64, self.core.y0 + r.dy as f64)
+    }
+
+    /// Border records held.
+    pub fn records(&self) -> usize {
+        self.inner.len() + self.outer.len()
+    }
+
+    /// Heap bytes held by the summary.
+    pub fn bytes(&self) -> usize {
+        self.records() * std::mem::size_of::<BorderRecord>() + self.anchors.len() * 8 + 128
+    }
+
+    /// Checks that every record's label is one of the tile's labels.
+    pub fn validate(&self) -> Result<(), StitchError> {
+        let n = self.labels() as u32;
+        if let Some(r) = self
+            .inner
+            .iter()
+            .chain(&self.outer)
+            .find(|r| r.label == 0 || r.label > n)
+        {
+            return Err(StitchError::BadSummary {
+                tile: self.name.clone(),
+                reason: format!(
+                    "border record of point {} has label {}, tile has 1..={n}",
+                    r.pid, r.label
+                ),
+            });
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::TileName;
+
+    fn tile(points: &[([f64; 2], u32)], n_core: usize) -> Tile {
+        let id = TileId::grid(0, 0);
+        Tile {
+            id,
+            name: TileName {
+                id,
+                origin: (0.0, 0.0),
+            },
+            core: Rect {
+                x0: 0.0,
+                y0: 0.0,
+                x1: 10.0,
+                y1: 10.0,
+            },
+            buffer_m: 3.0,
+            records: Vec::new(),
+            ids: (0..points.len() as u64).map(|i| 100 + i).collect(),
+            xyz: points.iter().map(|(p, _)| [p[0], p[1], 0.0]).collect(),
+            n_core,
+            segments: points.iter().map(|(_, l)| *l).collect(),
+            segment_table: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn strips_and_anchors() {
+        let t = tile(
+            &[
+                ([5.0, 5.0], 1),   // core, interior: anchor only
+                ([0.5, 5.0], 1),   // core, west strip
+                ([9.5, 9.5], 2),   // core, NE corner strip
+                ([5.0, 1.99], 0),  // unlabelled: nothing
+                ([-1.0, 5.0], 1),  // buffer
+                ([10.5, 10.5], 3), // buffer-only segment
+            ],
+            4,
+        );
+        let s = BorderSummary::build(&t, 2.0, |pid| pid * 10).unwrap();
+        assert_eq!(s.anchors, vec![1000, 1020, u64::MAX]);
+        let inner: Vec<(u64, u32)> = s.inner.iter().map(|r| (r.pid, r.label)).collect();
+        assert_eq!(inner, vec![(101, 1), (102, 2)]);
+        let outer: Vec<(u64, u32)> = s.outer.iter().map(|r| (r.pid, r.label)).collect();
+        assert_eq!(outer, vec![(104, 1), (105, 3)]);
+        assert_eq!(s.position(&s.outer[0]), (-1.0, 5.0));
+        s.validate().unwrap();
+    }
+
+    #[test]
+    fn inconsistent_tile_is_an_error_not_a_panic() {
+        let mut t = tile(&[([1.0, 1.0], 1)], 1);
+        t.segments.clear();
+        assert!(BorderSummary::build(&t, 2.0, |p| p).is_err());
+        let mut s = BorderSummary::build(&tile(&[([1.0, 1.0], 1)], 1), 2.0, |p| p).unwrap();
+        s.inner[0].label = 7;
+        assert!(s.validate().is_err());
+    }
+}
