@@ -1,7 +1,7 @@
 //! Gate: a simulated drive (`synth --mcap`: spinning LiDAR ray-cast against the synthetic
 //! street, ROS 2 MCAP with PointCloud2 + /tf) decodes and georeferences to the truth positions
-//! of its returns within 1 mm, and the whole pipeline's ground and segment results are scored
-//! against the scene's truth classes and segments carried by every point.
+//! of its returns within 1 mm, and the whole pipeline's ground, segment and label results are
+//! scored against the scene's truth classes and segments carried by every point.
 
 mod common;
 mod mcap_common;
@@ -12,6 +12,12 @@ use tessera::synth::drive::write_drive;
 use tessera::synth::lidar::{simulate_revolution, LidarParams};
 use tessera::synth::scene::truth;
 use tessera::synth::{SceneParams, WORLD_OFFSET};
+
+/// Label thresholds on the drive, below the measured figures (road 99.0, cycle path 99.5,
+/// footpath 96.6, grass 99.0 % mapping accuracy; building F1 0.987) with a margin for the
+/// sparse 16-ring scan.
+const SUBCLASS_MA_MIN: f64 = 0.93;
+const BUILDING_F1_MIN: f64 = 0.95;
 
 fn drive(length_m: f64) -> LidarParams {
     LidarParams {
@@ -105,15 +111,58 @@ fn is_ground_truth(c: u32) -> bool {
     .contains(&(c as u8))
 }
 
+/// Codes the labelling stage gives ground points: unknown ground (2) and the subclasses the
+/// training samples name.
+fn is_ground_code(c: u32) -> bool {
+    [2, 11, 64, 65, 66, 67, 71].contains(&c)
+}
+
+/// Training samples as a user would draw them: the scene generator's classified points of the
+/// first 30 m of the same street (same seed), 5 m blocks of road, cycle path, footpath, grass.
+fn samples_for(p: &LidarParams, dir: &Path) -> std::path::PathBuf {
+    let scene = dir.join("scene");
+    let params = SceneParams {
+        length_m: 30.0,
+        points_per_m2: 150.0,
+        ..p.scene.clone()
+    };
+    tessera::synth::write_scene(&params, &scene, 50.0).unwrap();
+    let mut set = tessera::label::samples::SampleSet::default();
+    for e in std::fs::read_dir(&scene).unwrap() {
+        let f = e.unwrap().path();
+        if f.extension().is_some_and(|e| e == "laz") {
+            let s =
+                tessera::label::samples::from_classified_points(&f, "gt_class", 5.0, 30).unwrap();
+            set.samples.extend(s.samples.into_iter().filter(|s| {
+                [
+                    truth::ROAD,
+                    truth::CYCLE_PATH,
+                    truth::FOOTPATH,
+                    truth::GRASS,
+                ]
+                .contains(&s.class)
+            }));
+        }
+    }
+    assert!(set.samples.len() >= 8, "{} samples", set.samples.len());
+    let path = dir.join("samples.json");
+    set.save(&path).unwrap();
+    path
+}
+
 #[test]
 fn simulated_drive_through_the_pipeline_is_scored_against_the_truth() {
     let tmp = tempfile::tempdir().unwrap();
     let p = drive(60.0);
     let stats = write_drive(&p, tmp.path()).unwrap();
+    let samples = samples_for(&p, tmp.path());
     let out = tmp.path().join("out");
     let cfg = tessera::Config::load(
         None,
-        &["stages.run=[\"ground\", \"segment\", \"stats\"]".into()],
+        &[
+            "stages.run=[\"ground\", \"segment\", \"label\", \"stats\"]".into(),
+            format!("label.samples={:?}", samples.display().to_string()),
+        ],
     )
     .unwrap();
     let s =
@@ -123,10 +172,11 @@ fn simulated_drive_through_the_pipeline_is_scored_against_the_truth() {
     assert_eq!(r.points_written, stats.points);
     assert_eq!(r.points_near, 0);
     assert_eq!(s.points_out, stats.points);
-    // Ground: Type I / II, total error and kappa against the truth classes.
+    // Ground: Type I / II, total error and kappa against the truth classes (the labelling
+    // stage has replaced code 2 by the ground subclasses).
     let f = tessera::eval::load_fields(&out, 0.001, &["gt_class", "classification"]).unwrap();
     let want: Vec<bool> = f.values[0].iter().map(|&c| is_ground_truth(c)).collect();
-    let got: Vec<bool> = f.values[1].iter().map(|&c| c == 2).collect();
+    let got: Vec<bool> = f.values[1].iter().map(|&c| is_ground_code(c)).collect();
     let g = tessera::eval::ground::score_ground(&want, &got);
     eprintln!(
         "drive ground: Type I {:.2} %, Type II {:.2} %, total {:.2} %, kappa {:.2} % over {} points",
@@ -137,6 +187,37 @@ fn simulated_drive_through_the_pipeline_is_scored_against_the_truth() {
         want.len()
     );
     assert!(g.total < 3.0 && g.kappa > 93.0, "{g:?}");
+    // Labels: ground subclasses (mapping accuracy, document Table 14) and non-ground classes.
+    let reference: Vec<u8> = f.values[0].iter().map(|&c| c as u8).collect();
+    let predicted: Vec<u8> = f.values[1].iter().map(|&c| c as u8).collect();
+    let sub = [
+        truth::ROAD,
+        truth::CYCLE_PATH,
+        truth::FOOTPATH,
+        truth::GRASS,
+    ];
+    let e = tessera::eval::labels::evaluate(&reference, &predicted, &sub);
+    eprint!("drive ground subclasses:\n{}", e.table());
+    let objects = [
+        truth::BUILDING,
+        truth::HIGH_VEGETATION,
+        truth::POLE,
+        truth::VEHICLE,
+    ];
+    let o = tessera::eval::labels::evaluate(&reference, &predicted, &objects);
+    eprint!("drive non-ground classes:\n{}", o.table());
+    // The ground subclasses and the buildings dominate a drive and must be right; trees,
+    // poles and cars are printed (cars parked under crowns join the crown's object).
+    for c in sub {
+        let ma = e.row(c).unwrap().mapping_accuracy;
+        assert!(ma >= SUBCLASS_MA_MIN, "class {c}: mapping accuracy {ma:.3}");
+    }
+    let f1 = |c: u8| o.row(c).unwrap().f1;
+    assert!(
+        f1(truth::BUILDING) >= BUILDING_F1_MIN,
+        "building F1 {:.3}",
+        f1(truth::BUILDING)
+    );
     // Segments: Hoover/Sapkota counts against the truth segments (thesis tolerances).
     let o = tessera::eval::SegEvalOptions {
         ref_field: "gt_segment".into(),
