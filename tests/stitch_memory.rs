@@ -124,10 +124,18 @@ fn frontier_and_rss_flat_from_50_to_200_tiles_in_a_row() {
     // The pipeline without the segment stage drifts by ~8 % over the same lengths (65.8 ->
     // 71.2 MiB, ground only, measured with /usr/bin/time): the bound leaves room for that
     // drift, not for a frontier that grows with the drive.
+    //
+    // Peak RSS is one sample of a noisy quantity (a busy machine delays workers, and the
+    // allocator's high-water mark follows): a pair over the bound is measured once more and
+    // each length keeps its lower peak. A frontier growing with the drive fails both pairs.
+    let (mut short_rss, mut long_rss) = (short.rss_mb, long.rss_mb);
+    if long_rss > 1.2 * short_rss {
+        eprintln!("peak RSS {long_rss:.1} vs {short_rss:.1} MiB: measuring the pair again");
+        short_rss = short_rss.min(drive(d.path(), 50).rss_mb);
+        long_rss = long_rss.min(drive(d.path(), 200).rss_mb);
+    }
     assert!(
-        long.rss_mb <= 1.2 * short.rss_mb,
-        "peak RSS {:.1} MiB at 200 tiles vs {:.1} MiB at 50",
-        long.rss_mb,
-        short.rss_mb
+        long_rss <= 1.2 * short_rss,
+        "peak RSS {long_rss:.1} MiB at 200 tiles vs {short_rss:.1} MiB at 50"
     );
 }
