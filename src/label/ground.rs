@@ -35,6 +35,23 @@ pub struct GroundLabelParams {
     pub min_std: f64,
     /// Neighbours in the majority smoothing (0: no smoothing).
     pub smooth_k: usize,
+    /// A neighbour further than this from the tangent plane of the point it is reached from
+    /// does not join (a kerb step ends a region); 0 = no limit. Colour separates kerbs in
+    /// coloured scans; geometry-only runs need this.
+    pub max_step_m: f64,
+    /// Without training samples: road / sidewalk / terrain from kerbs and roughness
+    /// ([`super::kerbs`]) instead of the unknown code for every region.
+    pub geometry: bool,
+    /// Kerb rise between road and sidewalk, metres (geometry mode).
+    pub kerb_min_m: f64,
+    /// Largest kerb rise, metres (geometry mode).
+    pub kerb_max_m: f64,
+    /// Paved (road, sidewalk) regions: mean surface variation at most this (geometry mode).
+    pub rough_variation: f64,
+    /// Paved regions: mean |n_z| at least this (geometry mode).
+    pub level_nz: f64,
+    /// Codes of road, sidewalk and terrain (geometry mode).
+    pub geometry_codes: [u8; 3],
 }
 
 impl Default for GroundLabelParams {
@@ -50,6 +67,13 @@ impl Default for GroundLabelParams {
             sigma: 3.0,
             min_std: 1.0,
             smooth_k: 10,
+            max_step_m: 0.0,
+            geometry: false,
+            kerb_min_m: 0.05,
+            kerb_max_m: 0.35,
+            rough_variation: 0.01,
+            level_nz: 0.95,
+            geometry_codes: [11, 65, 67],
         }
     }
 }
@@ -96,11 +120,13 @@ fn find(parent: &mut [u32], mut x: u32) -> u32 {
 
 /// Labels ground points. `normals` are (unit normal, surface variation) per point, `lab` the
 /// CIELab colour (None: geometry only, every region is `unknown` unless no samples are
-/// needed), `nb` the neighbour lists of these points (sorted by distance), `samples` the
-/// classifier (None: unsupervised, every region `unknown`).
+/// needed), `xyz` the positions (needed for `max_step_m`), `nb` the neighbour lists of these
+/// points (sorted by distance), `samples` the classifier (None: unsupervised, every region
+/// `unknown`).
 pub fn label_ground(
     normals: &[([f32; 3], f32)],
     lab: Option<&[[f64; 3]]>,
+    xyz: Option<&[[f64; 3]]>,
     nb: &Neighbours,
     samples: Option<&SampleSet>,
     unknown: u8,
@@ -146,6 +172,12 @@ pub fn label_ground(
                 let dot = (na[0] * nbv[0] + na[1] * nbv[1] + na[2] * nbv[2]).abs();
                 if dot < cos_a {
                     continue;
+                }
+                if let (Some(x), true) = (xyz, p.max_step_m > 0.0) {
+                    let d: f64 = (0..3).map(|k| na[k] as f64 * (x[b][k] - x[a][k])).sum();
+                    if d.abs() > p.max_step_m {
+                        continue;
+                    }
                 }
                 if let Some(l) = lab {
                     let r = &regions[id as usize];
@@ -200,8 +232,15 @@ pub fn label_ground(
         l.sort_unstable();
         l.dedup();
     }
+    // Geometry mode judges every region on its own roughness and kerbs (merging by a*b*
+    // means nothing without colour); smoothing then cleans the fragments.
+    let merge_small = !(p.geometry && samples.is_none());
     let mut small: Vec<u32> = (1..regions.len() as u32)
-        .filter(|&r| regions[r as usize].n < p.min_region_points && pre_class[r as usize].is_none())
+        .filter(|&r| {
+            merge_small
+                && regions[r as usize].n < p.min_region_points
+                && pre_class[r as usize].is_none()
+        })
         .collect();
     small.sort_by_key(|&r| (regions[r as usize].n, r));
     for r in small {
@@ -280,14 +319,27 @@ pub fn label_ground(
         })
         .collect();
 
-    // 4. kNN majority smoothing (§9.2.6), one pass over a snapshot; ties keep the point's own
-    // class when it is among the most frequent, else the smallest code.
-    if p.smooth_k > 0 {
-        let snap = class.clone();
+    // 4. kNN majority smoothing (§9.2.6).
+    smooth_labels(&mut class, nb, p.smooth_k);
+    GroundLabels {
+        region: out_region,
+        class,
+        regions: next as usize,
+        regions_grown: grown,
+        regions_unknown: unknown_regions,
+    }
+}
+
+/// kNN majority smoothing of labels (§9.2.6), one pass over a snapshot with the first `k`
+/// neighbours of each point; ties keep the point's own class when it is among the most
+/// frequent, else the smallest code. `k` = 0: no smoothing.
+pub fn smooth_labels(class: &mut [u8], nb: &Neighbours, k: usize) {
+    if k > 0 {
+        let snap = class.to_vec();
         let mut counts = [0u16; 256];
         for (i, c) in class.iter_mut().enumerate() {
             let nbs = nb.of(i);
-            let nbs = &nbs[..nbs.len().min(p.smooth_k)];
+            let nbs = &nbs[..nbs.len().min(k)];
             if nbs.is_empty() {
                 continue;
             }
@@ -309,13 +361,6 @@ pub fn label_ground(
             }
             *c = best;
         }
-    }
-    GroundLabels {
-        region: out_region,
-        class,
-        regions: next as usize,
-        regions_grown: grown,
-        regions_unknown: unknown_regions,
     }
 }
 
@@ -372,14 +417,14 @@ mod tests {
         let p = GroundLabelParams::default();
         let nb = knn_surface(&pts, p.k, p.radius_m);
         let nrm = normals(&pts, &nb, p.radius_m);
-        let out = label_ground(&nrm, Some(&lab), &nb, Some(&set), 2, &p);
+        let out = label_ground(&nrm, Some(&lab), None, &nb, Some(&set), 2, &p);
         let ok = out.class.iter().zip(&truth).filter(|(a, b)| a == b).count();
         assert!(ok as f64 > 0.99 * pts.len() as f64, "{ok} of {}", pts.len());
         // Without the shadow sample the shadowed patch is unknown (2), not road.
         let set2 = SampleSet {
             samples: vec![set.samples[0].clone(), set.samples[2].clone()],
         };
-        let out2 = label_ground(&nrm, Some(&lab), &nb, Some(&set2), 2, &p);
+        let out2 = label_ground(&nrm, Some(&lab), None, &nb, Some(&set2), 2, &p);
         let shadow_unknown = pts
             .iter()
             .zip(&out2.class)

@@ -3,6 +3,7 @@
 //! object geometry ([`objects`]).
 
 pub mod ground;
+pub mod kerbs;
 pub mod objects;
 pub mod samples;
 

@@ -6,6 +6,7 @@
 use super::segment_stage::rgb_offset;
 use super::stage::{Stage, TileReport};
 use crate::error::{Error, Result};
+use crate::label::kerbs::{classify_by_kerbs, KerbRule};
 use crate::label::{
     classify_objects, label_ground, GroundLabelParams, LabelCodes, ObjectInput, ObjectParams,
     SampleSet,
@@ -116,7 +117,17 @@ impl Stage for LabelStage {
             .samples
             .as_ref()
             .map_or(0, |s| s.samples.iter().map(|s| s.class).max().unwrap_or(0));
-        self.section.codes.max().max(samples)
+        let geometry = if self.samples.is_none() && self.section.ground.geometry {
+            self.section
+                .ground
+                .geometry_codes
+                .into_iter()
+                .max()
+                .unwrap_or(0)
+        } else {
+            0
+        };
+        self.section.codes.max().max(samples).max(geometry)
     }
     fn context_m(&self) -> Option<f64> {
         Some(self.section.buffer_m)
@@ -133,14 +144,10 @@ impl Stage for LabelStage {
         report: &mut TileReport,
     ) -> Result<()> {
         let max = layout.max_classification();
-        let sample_max = self
-            .samples
-            .as_ref()
-            .map_or(0, |s| s.samples.iter().map(|s| s.class).max().unwrap_or(0));
-        if self.section.codes.max().max(sample_max) > max {
+        let need = self.max_class_code();
+        if need > max {
             return Err(Error::Config(format!(
-                "label codes up to {} do not fit point format {} (max {max}); set output.point_format = 6 or higher",
-                self.section.codes.max().max(sample_max),
+                "label codes up to {need} do not fit point format {} (max {max}); set output.point_format = 6 or higher",
                 layout.format.to_u8().unwrap_or(255)
             )));
         }
@@ -198,14 +205,35 @@ impl Stage for LabelStage {
             let gl = label_ground(
                 &nrm,
                 lab.as_deref(),
+                Some(&pts),
                 &nb,
                 self.samples.as_deref(),
                 self.section.codes.unknown_ground,
                 gp,
             );
+            // Without samples, geometry mode names road / sidewalk / terrain by kerbs.
+            let by_kerbs = (self.samples.is_none() && gp.geometry).then(|| {
+                let [road, sidewalk, terrain] = gp.geometry_codes;
+                let rule = KerbRule {
+                    kerb_min_m: gp.kerb_min_m,
+                    kerb_max_m: gp.kerb_max_m,
+                    rough_variation: gp.rough_variation,
+                    level_nz: gp.level_nz,
+                    min_border_pairs: 3,
+                    road,
+                    sidewalk,
+                    terrain,
+                    unknown: self.section.codes.unknown_ground,
+                };
+                let r2 = (gp.radius_m * gp.radius_m) as f32;
+                let mut c = classify_by_kerbs(&pts, &nrm, &nb, r2, &gl.region, gl.regions, &rule);
+                crate::label::ground::smooth_labels(&mut c, &nb, gp.smooth_k);
+                c
+            });
             times[3] = t.elapsed().as_secs_f64();
+            let ground_class = by_kerbs.as_ref().unwrap_or(&gl.class);
             for (k, &i) in gidx.iter().enumerate() {
-                new_class[i] = gl.class[k];
+                new_class[i] = ground_class[k];
             }
             ground_report = serde_json::json!({
                 "points": gidx.len(),
