@@ -22,8 +22,11 @@ s = json.load(open(sys.argv[1])); t = open(sys.argv[2]).read(); title = sys.argv
 sec = s["seconds"]
 wall = re.search(r"Elapsed \(wall clock\) time \(h:mm:ss or m:ss\): (\S+)", t).group(1)
 rss = int(re.search(r"Maximum resident set size \(kbytes\): (\d+)", t).group(1)) / 1024
-lab = sum((x["stats"]["label"]["ground"] or {}).get("points", 0) + x["stats"]["label"]["nonground_points"]
-          for x in s["tile_list"] if "label" in x.get("stats", {}))
+def labelled(l):
+    ng = l["nonground_points"]
+    ng = sum(ng.values()) if isinstance(ng, dict) else ng
+    return (l["ground"] or {}).get("points", 0) + ng
+lab = sum(labelled(x["stats"]["label"]) for x in s["tile_list"] if "label" in x.get("stats", {}))
 print(f"{title}: {s['points_in']:,} points, {s['tiles']} tiles; pipeline {sec['pipeline']:.1f} s wall = "
       f"{s['points_in'] / sec['pipeline'] / 1e6:.3f} M points/s (ground + segment + label); stage CPU-s: "
       f"ground {sec.get('stage_ground', 0):.1f}, segment {sec.get('stage_segment', 0):.1f}, "

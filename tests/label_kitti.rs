@@ -35,6 +35,7 @@ fn params() -> GroundLabelParams {
         max_step_m: 0.06,
         geometry: true,
         rough_variation: 0.003,
+        geometry_codes: [ROAD, SIDEWALK, TERRAIN],
         ..Default::default()
     }
 }
@@ -54,17 +55,7 @@ fn frame(points: &str, labels: &str) -> Option<tessera::eval::labels::LabelEval>
     let nb = knn_surface(&pts, p.k, p.radius_m);
     let nrm = normals(&pts, &nb, p.radius_m);
     let gl = label_ground(&nrm, None, Some(&pts), &nb, None, 2, &p);
-    let rule = KerbRule {
-        kerb_min_m: p.kerb_min_m,
-        kerb_max_m: p.kerb_max_m,
-        rough_variation: p.rough_variation,
-        level_nz: p.level_nz,
-        min_border_pairs: 3,
-        road: ROAD,
-        sidewalk: SIDEWALK,
-        terrain: TERRAIN,
-        unknown: 2,
-    };
+    let rule = KerbRule::from_params(&p, 2);
     let r2 = (p.radius_m * p.radius_m) as f32;
     let mut c = classify_by_kerbs(&pts, &nrm, &nb, r2, &gl.region, gl.regions, &rule);
     smooth_labels(&mut c, &nb, p.smooth_k);

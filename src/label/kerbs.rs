@@ -38,6 +38,25 @@ pub struct KerbRule {
     pub unknown: u8,
 }
 
+impl KerbRule {
+    /// The rule of the geometry-mode parameters of `[label.ground]`, with `unknown` for paved
+    /// regions it cannot place.
+    pub fn from_params(p: &super::GroundLabelParams, unknown: u8) -> Self {
+        let [road, sidewalk, terrain] = p.geometry_codes;
+        KerbRule {
+            kerb_min_m: p.kerb_min_m,
+            kerb_max_m: p.kerb_max_m,
+            rough_variation: p.rough_variation,
+            level_nz: p.level_nz,
+            min_border_pairs: 3,
+            road,
+            sidewalk,
+            terrain,
+            unknown,
+        }
+    }
+}
+
 #[derive(Clone, Copy, PartialEq, Eq, Debug)]
 enum Kind {
     Open,

@@ -213,18 +213,7 @@ impl Stage for LabelStage {
             );
             // Without samples, geometry mode names road / sidewalk / terrain by kerbs.
             let by_kerbs = (self.samples.is_none() && gp.geometry).then(|| {
-                let [road, sidewalk, terrain] = gp.geometry_codes;
-                let rule = KerbRule {
-                    kerb_min_m: gp.kerb_min_m,
-                    kerb_max_m: gp.kerb_max_m,
-                    rough_variation: gp.rough_variation,
-                    level_nz: gp.level_nz,
-                    min_border_pairs: 3,
-                    road,
-                    sidewalk,
-                    terrain,
-                    unknown: self.section.codes.unknown_ground,
-                };
+                let rule = KerbRule::from_params(gp, self.section.codes.unknown_ground);
                 let r2 = (gp.radius_m * gp.radius_m) as f32;
                 let mut c = classify_by_kerbs(&pts, &nrm, &nb, r2, &gl.region, gl.regions, &rule);
                 crate::label::ground::smooth_labels(&mut c, &nb, gp.smooth_k);
