@@ -120,20 +120,6 @@ pub fn classify_by_kerbs(
         adj[a as usize].push((b, med));
         adj[b as usize].push((a, -med));
     }
-    if std::env::var_os("TESSERA_DEBUG_KERBS").is_some() {
-        for r in 1..m {
-            if count[r] > 20 {
-                eprintln!(
-                    "region {r}: {} pts, sv {:.4}, nz {:.3}, paved {}, adj {:?}",
-                    count[r],
-                    sv[r] / count[r] as f64,
-                    nz[r] / count[r] as f64,
-                    paved[r],
-                    adj[r]
-                );
-            }
-        }
-    }
     let mut kind = vec![Kind::Open; m];
     let road = (1..m)
         .filter(|&r| paved[r])
