@@ -6,7 +6,8 @@
 #    median of RUNS each, ratio printed (> 1 means tessera is faster). Files: a simulated ROS 2
 #    drive and the real Ouster ROS 1 recording when ../shared/data is present.
 # 2. A whole simulated drive (>= 10^7 points) processed end to end by `tessera run` (decode,
-#    georeference with /tf and de-skew, tile, ground filter, write LAZ): points/s and peak RSS
+#    georeference with /tf and de-skew, tile, the default stages ground + segment + label with
+#    cross-tile stitching, write LAZ) at the default 1 GiB budget: points/s and peak RSS
 #    (/usr/bin/time -v), one run.
 # Usage: scripts/bench_mcap.sh [RUNS=5] [DRIVE_LENGTH_M=310]
 set -euo pipefail

@@ -19,6 +19,10 @@ pub struct TilingParams {
     pub buffer_m: f64,
     /// Smallest core edge quadtree splitting may produce, metres.
     pub min_tile_size_m: f64,
+    /// Thin the far part of split tiles' buffers (see `tiling::FarThin`).
+    pub thin_split_buffers: bool,
+    /// Split tiles keep every buffer point within this distance of their core, metres.
+    pub split_dense_buffer_m: f64,
 }
 
 /// Pipeline resource parameters.
@@ -144,6 +148,11 @@ impl Config {
                 "tiling.buffer_m must be in [0, tile_size_m), got {}",
                 t.buffer_m
             )));
+        }
+        if !(t.split_dense_buffer_m.is_finite() && t.split_dense_buffer_m >= 0.0) {
+            return Err(Error::Config(
+                "tiling.split_dense_buffer_m must be >= 0".into(),
+            ));
         }
         if !(t.min_tile_size_m.is_finite() && t.min_tile_size_m > 0.0) {
             return Err(Error::Config(

@@ -8,6 +8,8 @@
 //!   differently);
 //! - global ids = 1 + the smallest input ordinal of the segment's points, hence unique;
 //! - byte-identical `segment_id` values with 1 and 2 worker threads;
+//! - the same gates when the 50 m tiles are split by the quadtree (400 MiB budget), with the
+//!   far buffers of split tiles thinned and the stitcher trimming split cells' records;
 //!
 //! on a synthetic street (facades, cars, poles and trees along x; segments spanning 3–4
 //! tiles of 25 m) and on the real CycloMedia tile. "Same up to relabelling": ids are matched
@@ -170,10 +172,32 @@ fn check(inputs: &[PathBuf], precision_m: f64, what: &str, work: &Path) {
     let segmented = base.seg.iter().filter(|&&s| s != 0).count();
     println!("{what}: untiled: {n} points, {segmented} in segments");
     assert!(segmented > n / 10, "{what}: too little segmented to test");
-    for tile in [25.0, 50.0, 100.0] {
-        let dir = work.join(format!("t{tile}"));
-        run(inputs, &dir, tile, 20.0, &[]);
+    // The last run splits 50 m tiles down the quadtree at a 400 MiB budget: split children
+    // thin their far buffers (tiling.thin_split_buffers) and the stitcher trims the records
+    // of split cells as leaves arrive; both must leave the results as they are.
+    for (tile, split) in [(25.0, false), (50.0, false), (100.0, false), (50.0, true)] {
+        let dir = work.join(format!("t{tile}{}", if split { "split" } else { "" }));
+        let extra: &[&str] = if split {
+            &["pipeline.memory_budget_mb=400", "pipeline.threads=2"]
+        } else {
+            &[]
+        };
+        run(inputs, &dir, tile, 20.0, extra);
         let got = load(&dir, precision_m);
+        let tile = if split {
+            let s = &got.summary;
+            println!(
+                "{what}: tile {tile} m at 400 MiB: {} of {} tiles split, {} far buffer copies thinned, stitch frontier max {} records",
+                s["tiles_split"], s["tiles"], s["buffer_points_thinned"], s["stitch"]["frontier_records_max"]
+            );
+            assert!(
+                s["tiles_split"].as_u64().unwrap() > 0,
+                "{what}: nothing split"
+            );
+            format!("{tile} (split)")
+        } else {
+            format!("{tile}")
+        };
         assert_eq!(
             got.keys, base.keys,
             "{what}: tiled output holds other points"

@@ -40,12 +40,35 @@ pub struct BudgetPlan {
     /// Bytes per point every tile point costs whatever the stages (record, id, xyz, carried
     /// results), with slack.
     pub base_bytes_per_point: usize,
-    /// Per stage: working bytes per point and how far beyond the core it works (None: the
-    /// whole buffer).
-    pub stages: Vec<(usize, Option<f64>)>,
+    /// Per stage: working memory and how far beyond the core it works.
+    pub stages: Vec<StageMemory>,
     /// Reserved for the stitcher's frontier (border summaries of tiles waiting for their
     /// neighbours), bytes; 0 without stitching.
     pub stitch_bytes: u64,
+}
+
+/// A stage's working memory as the plan charges it (see [`BudgetPlan::fits`]); checked against
+/// a counting allocator by `tests/stage_memory.rs`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct StageMemory {
+    /// Bytes per point within the stage's context.
+    pub context_bytes: usize,
+    /// Bytes per point of the whole tile (flags and per-point arrays the stage builds for
+    /// every point, even those outside its context).
+    pub tile_bytes: usize,
+    /// How far beyond the core the stage works, metres (None: the whole buffer).
+    pub context_m: Option<f64>,
+}
+
+impl StageMemory {
+    /// A stage working on the whole tile.
+    pub fn whole(bytes_per_point: usize) -> Self {
+        StageMemory {
+            context_bytes: bytes_per_point,
+            tile_bytes: 0,
+            context_m: None,
+        }
+    }
 }
 
 impl BudgetPlan {
@@ -60,20 +83,23 @@ impl BudgetPlan {
         Self::with_stages(
             budget_mb,
             record_len,
-            &[(stage_bytes_per_point, None)],
+            &[StageMemory::whole(stage_bytes_per_point)],
             workers,
         )
     }
 
-    /// Plans for stages given as (working bytes per point, context beyond the core in metres
-    /// or None for the whole buffer).
+    /// Plans for the stages' working memory.
     pub fn with_stages(
         budget_mb: u64,
         record_len: usize,
-        stages: &[(usize, Option<f64>)],
+        stages: &[StageMemory],
         workers: usize,
     ) -> Result<Self> {
-        let stage_bytes_per_point = stages.iter().map(|s| s.0).max().unwrap_or(0);
+        let stage_bytes_per_point = stages
+            .iter()
+            .map(|s| s.context_bytes + s.tile_bytes)
+            .max()
+            .unwrap_or(0);
         let budget = budget_mb << 20;
         let workers = workers.max(1);
         let usable = budget.saturating_sub(FIXED_BYTES);
@@ -118,23 +144,23 @@ impl BudgetPlan {
     }
 
     /// Whether a tile of `n_core` + `n_buf` points with buffer width `buffer_m` fits its share
-    /// of the budget. Stages that work only within `c` metres of the core are charged for the
-    /// core points plus the fraction c / buffer_m of the buffer points: exact for a drive
-    /// crossing the tile (points spread along one axis), an overestimate for points spread
-    /// over the area.
+    /// of the budget. Stages that work only within `c` metres of the core are charged their
+    /// context bytes for the core points plus the fraction c / buffer_m of the buffer points
+    /// (exact for a drive crossing the tile, points spread along one axis; an overestimate for
+    /// points spread over the area) and their tile bytes for every point; 25 % slack on both.
     pub fn fits(&self, n_core: u64, n_buf: u64, buffer_m: f64) -> bool {
         let n = n_core + n_buf;
         let stage = self
             .stages
             .iter()
-            .map(|&(bpp, ctx)| {
-                let near = match ctx {
+            .map(|m| {
+                let near = match m.context_m {
                     Some(c) if buffer_m > 0.0 && c < buffer_m => {
                         n_core + (n_buf as f64 * c / buffer_m).ceil() as u64
                     }
                     _ => n,
                 };
-                near * (bpp as u64 * 5 / 4)
+                (near * m.context_bytes as u64 + n * m.tile_bytes as u64) * 5 / 4
             })
             .max()
             .unwrap_or(0);
@@ -192,7 +218,12 @@ mod tests {
 
     #[test]
     fn stages_with_small_context_admit_larger_buffers() {
-        let p = BudgetPlan::with_stages(1024, 34, &[(96, None), (400, Some(5.0))], 2).unwrap();
+        let ctx = StageMemory {
+            context_bytes: 400,
+            tile_bytes: 0,
+            context_m: Some(5.0),
+        };
+        let p = BudgetPlan::with_stages(1024, 34, &[StageMemory::whole(96), ctx], 2).unwrap();
         let m = p.max_tile_points;
         assert!(p.fits(m / 2, m / 2, 20.0));
         // Twice the worst-case limit fits when most points are buffer the stage ignores...

@@ -18,6 +18,8 @@ pub(super) struct TileMeta {
     pub buffer_points: u64,
     pub report: TileReport,
     pub split_root: Option<String>,
+    /// Far buffer point copies dropped while splitting this tile's job (see `FarThin`).
+    pub buffer_thinned: u64,
 }
 
 /// A processed tile's output.
@@ -167,6 +169,7 @@ impl<'a> Collector<'a> {
     fn book(&mut self, meta: TileMeta, path: &Path) {
         let s = &mut self.summary;
         s.points_out += meta.n_core;
+        s.buffer_points_thinned += meta.buffer_thinned;
         if let Some(root) = meta.split_root {
             if !s.split_tiles.contains(&root) {
                 s.split_tiles.push(root);

@@ -36,6 +36,12 @@ impl Stage for GroundStage {
     fn bytes_per_point(&self) -> usize {
         self.section.params.bytes_per_point()
     }
+    fn far_cell_m(&self) -> Option<f64> {
+        // Only one low point per `densify_cell_m` cell seeds and densifies the TIN; the rest
+        // are judged by the final pass, which only matters for points that are written.
+        let c = self.section.params.densify_cell_m;
+        (c > 0.0).then_some(c)
+    }
     fn process(
         &self,
         tile: &mut Tile,

@@ -134,8 +134,15 @@ impl Stage for LabelStage {
     }
     fn bytes_per_point(&self) -> usize {
         // Neighbour lists (index + distance, k of them), normals, colour, region and class
-        // arrays, the object voxel maps.
-        8 * self.section.ground.k + 150
+        // arrays, the object voxel maps. Measured by `tests/stage_memory.rs` (counting
+        // allocator, k = 12): at most ~290 B per context point once the per-tile arrays below
+        // are charged separately.
+        8 * self.section.ground.k + 210
+    }
+    fn bytes_per_tile_point(&self) -> usize {
+        // Flags, classes, heights above ground, voxel and object ids built for every tile
+        // point (~25 B), with room for the ground height grid.
+        48
     }
     fn process(
         &self,

@@ -23,7 +23,7 @@ use crate::io::output::{segment_table_tsv, SegmentIdType, TileSegments};
 use crate::io::{scan_inputs, write_atomic, InputSet, TileWriter};
 use crate::report::{peak_rss_mb, Summary};
 use crate::stitch::BorderSummary;
-use crate::tiling::{load_tile, schedule, split_job, Grid, TileJob, Tiler};
+use crate::tiling::{load_tile, schedule, split_job, FarThin, Grid, TileJob, Tiler};
 use budget::BudgetPlan;
 use collect::{Collector, Processed, TileMeta, TileOutput, ToWriter};
 use crossbeam_channel::{bounded, Receiver, Sender};
@@ -56,6 +56,8 @@ struct RunCtx<'a> {
     writer: &'a TileWriter,
     /// Stitching: the overlap strip width and each input's first point ordinal.
     stitch: Option<StitchCtx>,
+    /// Far-buffer thinning of split tiles, when the stages allow it.
+    far_thin: Option<FarThin>,
 }
 
 /// What workers need to summarise tiles for stitching.
@@ -154,9 +156,13 @@ pub fn run_with_stages(
     // Stages run one after the other on a tile and free their working memory before the next
     // starts, so the largest one counts (the plan charges results carried between stages,
     // such as segment labels, to every point).
-    let stage_mem: Vec<(usize, Option<f64>)> = stages
+    let stage_mem: Vec<budget::StageMemory> = stages
         .iter()
-        .map(|s| (s.bytes_per_point(), s.context_m()))
+        .map(|s| budget::StageMemory {
+            context_bytes: s.bytes_per_point(),
+            tile_bytes: s.bytes_per_tile_point(),
+            context_m: s.context_m(),
+        })
         .collect();
     let segments = stages.iter().any(|s| s.name() == "segment");
     let stitching = segments && cfg.stitch.enabled;
@@ -211,7 +217,9 @@ pub fn run_with_stages(
         cfg.output.format == "laz",
         segments.then_some(id_type),
     )?;
+    let far_thin = far_thin(cfg, stages);
     let ctx = RunCtx {
+        far_thin,
         set: &set,
         out_dir,
         spill_dir: &spill_dir,
@@ -472,6 +480,40 @@ fn run_inner(ctx: &RunCtx, progress: ProgressFn) -> Result<Summary> {
     Ok(summary)
 }
 
+/// Far-buffer thinning for split tiles: allowed when every stage that reads the whole buffer
+/// names a far cell ([`Stage::far_cell_m`]); points within the widest bounded context of the
+/// other stages, and at least within `tiling.split_dense_buffer_m`, are all kept.
+fn far_thin(cfg: &Config, stages: &[Box<dyn Stage>]) -> Option<FarThin> {
+    if !cfg.tiling.thin_split_buffers {
+        return None;
+    }
+    let readers: Vec<&dyn Stage> = stages
+        .iter()
+        .filter(|s| s.needs_context())
+        .map(|s| s.as_ref())
+        .collect();
+    let whole: Vec<&dyn Stage> = readers
+        .iter()
+        .copied()
+        .filter(|s| s.context_m().is_none())
+        .collect();
+    let mut cell_m = f64::INFINITY;
+    for s in &whole {
+        cell_m = cell_m.min(s.far_cell_m()?);
+    }
+    if !cell_m.is_finite() {
+        return None;
+    }
+    let near_m = readers
+        .iter()
+        .filter_map(|s| s.context_m())
+        .fold(0.0f64, f64::max);
+    Some(FarThin {
+        near_m: near_m.max(cfg.tiling.split_dense_buffer_m),
+        cell_m,
+    })
+}
+
 /// Processes one job: splits it while it is too big for the budget, then loads and runs the
 /// stages on each resulting tile and compresses its core points to a temporary file.
 fn work(job: TileJob, ctx: &RunCtx, res_tx: &Sender<ToWriter>) -> Result<()> {
@@ -484,23 +526,35 @@ fn work(job: TileJob, ctx: &RunCtx, res_tx: &Sender<ToWriter>) -> Result<()> {
         stages,
         writer,
         ref stitch,
+        far_thin,
     } = *ctx;
     let root = job.name.to_string();
     let cell = (job.id.ix, job.id.iy);
     let mut leaves = 0;
     let mut todo = vec![job];
     let mut was_split = false;
+    let mut thinned = 0;
     while let Some(job) = todo.pop() {
         if !plan.fits(job.n_core, job.n_buf, job.buffer_m) {
             was_split = true;
-            let children = split_job(
+            let (children, dropped) = split_job(
                 &job,
                 &set.layout,
                 spill_dir,
                 cfg.tiling.min_tile_size_m,
                 plan.spill_bytes / plan.workers.max(1),
                 plan.max_tile_points,
+                far_thin,
             )?;
+            tracing::debug!(
+                "tile {}: {} core + {} buffer points do not fit; split into {} children ({} far buffer copies thinned)",
+                job.name,
+                job.n_core,
+                job.n_buf,
+                children.len(),
+                dropped
+            );
+            thinned += dropped;
             // Reverse so children are processed in quadrant order.
             todo.extend(children.into_iter().rev());
             continue;
@@ -514,6 +568,13 @@ fn work(job: TileJob, ctx: &RunCtx, res_tx: &Sender<ToWriter>) -> Result<()> {
                 .seconds
                 .insert(st.name().to_string(), t.elapsed().as_secs_f64());
         }
+        tracing::debug!(
+            "tile {}: {} core + {} buffer points, stage seconds {:?}",
+            tile.name,
+            tile.n_core,
+            tile.len() - tile.n_core,
+            report.seconds
+        );
         let name = tile.name.to_string();
         let n_core = tile.n_core;
         let buffer_points = (tile.len() - n_core) as u64;
@@ -551,6 +612,7 @@ fn work(job: TileJob, ctx: &RunCtx, res_tx: &Sender<ToWriter>) -> Result<()> {
                 buffer_points,
                 report,
                 split_root: was_split.then(|| root.clone()),
+                buffer_thinned: std::mem::take(&mut thinned),
             },
             output,
         };

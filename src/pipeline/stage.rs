@@ -24,6 +24,12 @@ pub trait Stage: Send + Sync {
     /// Working memory the stage needs per tile point, bytes (an honest upper estimate: it
     /// sizes tiles against the memory budget).
     fn bytes_per_point(&self) -> usize;
+    /// Working memory per point of the whole tile, bytes, for stages with a bounded context
+    /// (`context_m`) that still build per-point arrays over every tile point; charged on top
+    /// of `bytes_per_point` on the context points.
+    fn bytes_per_tile_point(&self) -> usize {
+        0
+    }
     /// Whether the stage reads the buffer points around the core (context). When no stage
     /// does, the pipeline does not build buffers at all.
     fn needs_context(&self) -> bool {
@@ -32,6 +38,13 @@ pub trait Stage: Send + Sync {
     /// How far beyond the core the stage works, metres (None: the whole buffer). Sizes its
     /// share of the memory budget.
     fn context_m(&self) -> Option<f64> {
+        None
+    }
+    /// For a stage reading the whole buffer (`context_m` None): a cell size such that, beyond
+    /// the other stages' context, the stage only needs the lowest points of each cell of that
+    /// size (aligned to absolute multiples). None: it needs every buffer point. Lets split
+    /// tiles thin their far buffers ([`crate::tiling::FarThin`]).
+    fn far_cell_m(&self) -> Option<f64> {
         None
     }
     /// Largest classification code the stage may write (codes above 31 need point formats

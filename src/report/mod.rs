@@ -44,6 +44,9 @@ pub struct Summary {
     pub tiles_split: usize,
     /// Names of the split grid tiles.
     pub split_tiles: Vec<String>,
+    /// Buffer point copies split tiles dropped beyond the stages' context (`tiling.
+    /// thin_split_buffers`); never core points.
+    pub buffer_points_thinned: u64,
     /// Wall seconds per phase and summed worker seconds per stage.
     pub seconds: BTreeMap<String, f64>,
     /// Peak resident set size (VmHWM), MiB.

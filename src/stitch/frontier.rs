@@ -19,9 +19,12 @@
 
 use super::components::{node, split, Components, Final};
 use super::pairs::match_pair;
-use super::summary::BorderSummary;
+use super::summary::{BorderRecord, BorderSummary};
 use super::{CellKey, StitchError, StitchParams, StitchStats};
+use crate::model::{Rect, TileId};
+use crate::tiling::spill::FastHasher;
 use std::collections::{HashMap, HashSet};
+use std::hash::BuildHasherDefault;
 
 /// The tiler's release of one grid cell.
 #[derive(Debug, Clone, PartialEq)]
@@ -51,6 +54,58 @@ struct CellState {
     refs: u32,
     relevant: Vec<CellKey>,
     tiles: Vec<u32>,
+    /// Quadtree leaves of a split cell that arrived, (level, path), and every ancestor of
+    /// one; with `rect`, the cell's core: what [`Stitcher::trim_cell`] needs.
+    arrived: NodeSet,
+    ancestors: NodeSet,
+    rect: Option<Rect>,
+    /// Border records its open tiles hold, and how many they held after the last trim.
+    held: u64,
+    held_after_trim: u64,
+}
+
+type NodeSet = HashSet<(u8, u64), BuildHasherDefault<FastHasher>>;
+
+/// A split cell's tiles are trimmed when the records they hold have doubled since the last
+/// trim (and exceed this): amortised O(1) work per record instead of a pass per arriving leaf.
+const TRIM_MIN_RECORDS: u64 = 100_000;
+
+impl CellState {
+    /// Whether `q` (clipped to the cell) lies inside the cores of arrived leaves; `node` is
+    /// a quadtree node (level, path) with rectangle `r`.
+    fn covered(&self, node: (u8, u64), r: Rect, q: &Rect) -> bool {
+        if !r.intersects(q) || self.arrived.contains(&node) {
+            return true;
+        }
+        if !self.ancestors.contains(&node) {
+            return false;
+        }
+        (0u8..4).all(|c| self.covered((node.0 + 1, (node.1 << 2) | c as u64), r.quadrant(c), q))
+    }
+}
+
+/// The grid cell's core rectangle from one of its quadtree leaves.
+fn cell_rect(leaf: &TileId, core: &Rect) -> Rect {
+    let w = core.width() * (1u64 << leaf.level) as f64;
+    let h = (core.y1 - core.y0) * (1u64 << leaf.level) as f64;
+    let (mut x0, mut y0) = (core.x0, core.y0);
+    for l in 0..leaf.level {
+        // Quadrant taken at depth `level - l` (the least significant bits are the deepest).
+        let q = (leaf.path >> (2 * l as u64)) & 3;
+        let scale = (1u64 << (leaf.level - l)) as f64;
+        if q & 1 == 1 {
+            x0 -= w / scale;
+        }
+        if q & 2 == 2 {
+            y0 -= h / scale;
+        }
+    }
+    Rect {
+        x0,
+        y0,
+        x1: x0 + w,
+        y1: y0 + h,
+    }
 }
 
 #[derive(Debug)]
@@ -263,10 +318,108 @@ impl<P> Stitcher<P> {
                 payload: Some(payload),
             },
         );
-        if let Some(e) = self.cells.get_mut(&cell) {
+        let leaf = self.tiles[&slot]
+            .summary
+            .as_ref()
+            .map(|s| (s.tile, s.core, s.records() as u64));
+        if let (Some(e), Some((id, core, records))) = (self.cells.get_mut(&cell), leaf) {
             e.tiles.push(slot);
+            e.held += records;
+            if id.level > 0 {
+                e.rect.get_or_insert_with(|| cell_rect(&id, &core));
+                e.arrived.insert((id.level, id.path));
+                for up in 1..=id.level {
+                    e.ancestors
+                        .insert((id.level - up, id.path >> (2 * up as u64)));
+                }
+                if e.held > TRIM_MIN_RECORDS.max(2 * e.held_after_trim) {
+                    self.trim_cell(cell, false);
+                }
+            }
         }
         Ok(())
+    }
+
+    /// Drops the border records of a split cell's open tiles that no tile still to come can
+    /// share: a point is needed only while some future tile's zone (core grown by the strip)
+    /// can contain it, i.e. while the square of half-width `strip_m` around it reaches
+    /// outside the cell (tiles of other cells) or into a part of the cell no arrived leaf
+    /// covers (leaves still to come; all of the cell is covered once `complete`). Without
+    /// this, a dense cell split into many small leaves held each point once per leaf whose
+    /// zone reached it (~7× the cell's points at 6 m leaves) until the whole cell closed —
+    /// 700 MB on a simulated drive at a 256 MiB budget. The matches are unchanged: every pair is matched when its second tile arrives, from
+    /// records this rule keeps.
+    fn trim_cell(&mut self, cell: CellKey, complete: bool) {
+        let Some(e) = self.cells.get(&cell) else {
+            return;
+        };
+        let Some(rect) = e.rect else { return };
+        let s = self.strip_m + 1e-6;
+        let inside = rect.expanded(-s);
+        let root = (0u8, 0u64);
+        let mut dropped_all = 0u64;
+        for &slot in &e.tiles {
+            let Some(sum) = self.tiles.get_mut(&slot).and_then(|t| t.summary.as_mut()) else {
+                continue;
+            };
+            let before = sum.records();
+            let (cx, cy) = (sum.core.x0, sum.core.y0);
+            // A core (inner) record pairs with a later tile whose zone holds the point: keep
+            // it while the square of half-width `strip_m` around it reaches outside the cell
+            // or into a part no arrived leaf covers.
+            let keep_inner = |r: &BorderRecord| {
+                let (x, y) = (cx + r.dx as f64, cy + r.dy as f64);
+                if !inside.contains(x, y) {
+                    return true;
+                }
+                !complete
+                    && !e.covered(
+                        root,
+                        rect,
+                        &Rect {
+                            x0: x - s,
+                            y0: y - s,
+                            x1: x + s,
+                            y1: y + s,
+                        },
+                    )
+            };
+            // A buffer (outer) record pairs only with the tile whose core holds the point:
+            // keep it while that core may still come (outside the cell, or not covered).
+            let keep_outer = |r: &BorderRecord| {
+                let (x, y) = (cx + r.dx as f64, cy + r.dy as f64);
+                if !rect.contains(x, y) {
+                    return true;
+                }
+                !complete
+                    && !e.covered(
+                        root,
+                        rect,
+                        &Rect {
+                            x0: x,
+                            y0: y,
+                            x1: x,
+                            y1: y,
+                        },
+                    )
+            };
+            sum.inner.retain(keep_inner);
+            sum.outer.retain(keep_outer);
+            let dropped = before - sum.records();
+            if dropped > 0 {
+                if dropped * 2 > before {
+                    sum.inner.shrink_to_fit();
+                    sum.outer.shrink_to_fit();
+                }
+                self.held_records -= dropped as u64;
+                self.held_bytes -= (dropped * std::mem::size_of::<BorderRecord>()) as u64;
+                dropped_all += dropped as u64;
+            }
+        }
+        if let Some(e) = self.cells.get_mut(&cell) {
+            e.held -= dropped_all;
+            e.held_after_trim = e.held;
+        }
     }
 
     /// A worker finished every leaf tile of `cell` (`leaves` of them were sent).
@@ -290,6 +443,7 @@ impl<P> Stitcher<P> {
             });
         }
         e.done = true;
+        self.trim_cell(cell, true);
         self.cell_completed(cell);
         Ok(())
     }
@@ -378,6 +532,9 @@ impl<P> Stitcher<P> {
         };
         t.closed = true;
         if let Some(s) = t.summary.take() {
+            if let Some(e) = self.cells.get_mut(&(s.tile.ix, s.tile.iy)) {
+                e.held = e.held.saturating_sub(s.records() as u64);
+            }
             self.open_tiles -= 1;
             self.held_records -= s.records() as u64;
             self.held_bytes -= s.bytes() as u64;
@@ -457,5 +614,58 @@ impl<P> Stitcher<P> {
                 });
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cell_rect_walks_back_up_the_quadtree() {
+        let cell = Rect {
+            x0: 100.0,
+            y0: 200.0,
+            x1: 150.0,
+            y1: 250.0,
+        };
+        let mut id = TileId::grid(2, 4);
+        let mut r = cell;
+        for q in [3u8, 0, 2, 1] {
+            id = id.child(q);
+            r = r.quadrant(q);
+            assert_eq!(cell_rect(&id, &r), cell, "{id:?}");
+        }
+    }
+
+    #[test]
+    fn coverage_follows_arrived_leaves() {
+        let cell = Rect {
+            x0: 0.0,
+            y0: 0.0,
+            x1: 8.0,
+            y1: 8.0,
+        };
+        let mut e = CellState::default();
+        // Leaves: quadrant 0 whole, and quadrant 1 split with only its child 0 arrived.
+        for (level, path) in [(1u8, 0u64), (2, 0b01_00)] {
+            e.arrived.insert((level, path));
+            for up in 1..=level {
+                e.ancestors.insert((level - up, path >> (2 * up as u64)));
+            }
+        }
+        let sq = |x: f64, y: f64, s: f64| Rect {
+            x0: x - s,
+            y0: y - s,
+            x1: x + s,
+            y1: y + s,
+        };
+        let root = (0u8, 0u64);
+        assert!(e.covered(root, cell, &sq(2.0, 2.0, 1.0)));
+        // Reaches from quadrant 0 into the arrived child of quadrant 1 (x 4..6, y 0..2).
+        assert!(e.covered(root, cell, &sq(4.0, 1.0, 0.9)));
+        // Reaches the missing child 1 of quadrant 1 (x 6..8) or quadrant 2 (y ≥ 4).
+        assert!(!e.covered(root, cell, &sq(5.5, 1.0, 1.0)));
+        assert!(!e.covered(root, cell, &sq(2.0, 3.5, 1.0)));
     }
 }

@@ -1,0 +1,243 @@
+//! The memory model's per-stage figures against what the stages really allocate.
+//!
+//! The budget plan sizes tiles with each stage's `bytes_per_point()` (charged with 25 % slack
+//! on the points within the stage's context). If a stage allocates more than that, tiles that
+//! "fit" overrun the budget. This test wraps every stage of the default pipeline, runs it on a
+//! simulated mobile-mapping drive (MCAP) and on a synthetic street scene with one worker, and
+//! measures with a counting global allocator the heap growth during each stage call on each
+//! tile: the peak of live heap bytes during the call minus the live bytes at its start. Every
+//! tile of at least 50,000 points must stay within the stage's charge.
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::path::Path;
+use std::process::Command;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+use tessera::model::{RecordLayout, Tile};
+use tessera::pipeline::{build_stages, run_with_stages, Stage, TileReport};
+
+struct Counting;
+
+static LIVE: AtomicUsize = AtomicUsize::new(0);
+static PEAK: AtomicUsize = AtomicUsize::new(0);
+
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
+        let p = System.alloc(l);
+        if !p.is_null() {
+            let now = LIVE.fetch_add(l.size(), Ordering::Relaxed) + l.size();
+            PEAK.fetch_max(now, Ordering::Relaxed);
+        }
+        p
+    }
+    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
+        System.dealloc(p, l);
+        LIVE.fetch_sub(l.size(), Ordering::Relaxed);
+    }
+    unsafe fn realloc(&self, p: *mut u8, l: Layout, new: usize) -> *mut u8 {
+        let q = System.realloc(p, l, new);
+        if !q.is_null() {
+            if new >= l.size() {
+                let now = LIVE.fetch_add(new - l.size(), Ordering::Relaxed) + new - l.size();
+                PEAK.fetch_max(now, Ordering::Relaxed);
+            } else {
+                LIVE.fetch_sub(l.size() - new, Ordering::Relaxed);
+            }
+        }
+        q
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+/// One stage call on one tile.
+#[derive(Debug, Clone)]
+struct Call {
+    stage: &'static str,
+    tile: String,
+    points: usize,
+    /// Points the plan charges the stage for (core + the buffer share within its context).
+    charged: usize,
+    /// Heap growth during the call, bytes.
+    grew: usize,
+    /// Live heap bytes at the start of the call per tile point (the tile's own arrays and
+    /// results carried from earlier stages, plus whatever else the process holds).
+    live_per_point: f64,
+    declared: usize,
+}
+
+struct Measured {
+    inner: Box<dyn Stage>,
+    calls: Arc<Mutex<Vec<Call>>>,
+}
+
+impl Stage for Measured {
+    fn name(&self) -> &'static str {
+        self.inner.name()
+    }
+    fn bytes_per_point(&self) -> usize {
+        self.inner.bytes_per_point()
+    }
+    fn needs_context(&self) -> bool {
+        self.inner.needs_context()
+    }
+    fn context_m(&self) -> Option<f64> {
+        self.inner.context_m()
+    }
+    fn far_cell_m(&self) -> Option<f64> {
+        self.inner.far_cell_m()
+    }
+    fn max_class_code(&self) -> u8 {
+        self.inner.max_class_code()
+    }
+    fn process(
+        &self,
+        tile: &mut Tile,
+        layout: &RecordLayout,
+        report: &mut TileReport,
+    ) -> tessera::Result<()> {
+        let start = LIVE.load(Ordering::SeqCst);
+        PEAK.store(start, Ordering::SeqCst);
+        self.inner.process(tile, layout, report)?;
+        let grew = PEAK.load(Ordering::SeqCst).saturating_sub(start);
+        let charged = match self.inner.context_m() {
+            Some(c) => {
+                let zone = tile.core.expanded(c.min(tile.buffer_m));
+                tile.xyz
+                    .iter()
+                    .filter(|p| zone.contains(p[0], p[1]))
+                    .count()
+            }
+            None => tile.len(),
+        };
+        self.calls.lock().unwrap().push(Call {
+            stage: self.inner.name(),
+            tile: tile.name.to_string(),
+            points: tile.len(),
+            charged,
+            grew,
+            live_per_point: start as f64 / tile.len().max(1) as f64,
+            declared: self.inner.bytes_per_point(),
+        });
+        Ok(())
+    }
+}
+
+fn measure(input: &Path, out: &Path, set: &[&str]) -> Vec<Call> {
+    let mut overrides: Vec<String> =
+        vec!["pipeline.threads=1".into(), "stitch.enabled=false".into()];
+    overrides.extend(set.iter().map(|s| s.to_string()));
+    let cfg = tessera::Config::load(None, &overrides).unwrap();
+    let calls = Arc::new(Mutex::new(Vec::new()));
+    let stages: Vec<Box<dyn Stage>> = build_stages(&cfg)
+        .unwrap()
+        .into_iter()
+        .map(|inner| {
+            Box::new(Measured {
+                inner,
+                calls: calls.clone(),
+            }) as Box<dyn Stage>
+        })
+        .collect();
+    let files: Vec<std::path::PathBuf> = if input.is_dir() {
+        let mut v: Vec<_> = std::fs::read_dir(input)
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .filter(|p| {
+                p.extension()
+                    .is_some_and(|e| e == "laz" || e == "las" || e == "mcap")
+            })
+            .collect();
+        v.sort();
+        v
+    } else {
+        vec![input.to_path_buf()]
+    };
+    run_with_stages(&files, out, &cfg, &stages, &|_, _| {}).unwrap();
+    let v = calls.lock().unwrap().clone();
+    v
+}
+
+fn check(name: &str, calls: &[Call]) -> Vec<String> {
+    let mut failures = Vec::new();
+    println!("{name}: {} stage calls", calls.len());
+    let mut stages: Vec<&str> = calls.iter().map(|c| c.stage).collect();
+    stages.dedup();
+    stages.sort();
+    stages.dedup();
+    for st in stages {
+        let big: Vec<&Call> = calls
+            .iter()
+            .filter(|c| c.stage == st && c.charged >= 50_000)
+            .collect();
+        if big.is_empty() {
+            continue;
+        }
+        let per: Vec<f64> = big
+            .iter()
+            .map(|c| c.grew as f64 / c.charged as f64)
+            .collect();
+        let worst = big
+            .iter()
+            .zip(&per)
+            .max_by(|a, b| a.1.total_cmp(b.1))
+            .unwrap();
+        let charge = worst.0.declared as f64 * 1.25;
+        println!(
+            "  {st:7} {} tiles >= 50k charged points: heap growth per charged point median {:.0} B, max {:.0} B (tile {}, {} charged of {} points); declared {} B, charged {:.0} B; live at start {:.0} B per tile point",
+            big.len(),
+            median(&per),
+            worst.1,
+            worst.0.tile,
+            worst.0.charged,
+            worst.0.points,
+            worst.0.declared,
+            charge,
+            median(&big.iter().map(|c| c.live_per_point).collect::<Vec<_>>()),
+        );
+        if *worst.1 > charge {
+            failures.push(format!(
+                "{name}: stage {st} grew {:.0} B per charged point on tile {} (declared {} B, charged {charge:.0} B)",
+                worst.1, worst.0.tile, worst.0.declared
+            ));
+        }
+    }
+    failures
+}
+
+fn median(v: &[f64]) -> f64 {
+    let mut s = v.to_vec();
+    s.sort_by(f64::total_cmp);
+    s.get(s.len() / 2).copied().unwrap_or(0.0)
+}
+
+#[test]
+fn stages_stay_within_their_declared_memory() {
+    let exe = env!("CARGO_BIN_EXE_tessera");
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let st = Command::new(exe)
+        .args(["-q", "synth", "--mcap", "--length-m", "40", "--out"])
+        .arg(d.join("drive"))
+        .status()
+        .unwrap();
+    assert!(st.success());
+    let st = Command::new(exe)
+        .args(["-q", "synth", "--seed", "3", "--length-m", "60", "--out"])
+        .arg(d.join("street"))
+        .status()
+        .unwrap();
+    assert!(st.success());
+    let mut failures = Vec::new();
+    // Small tiles at a tight budget make the drive split (the far-buffer thinning path).
+    let drive = measure(
+        &d.join("drive/drive.mcap"),
+        &d.join("out_drive"),
+        &["pipeline.memory_budget_mb=256"],
+    );
+    failures.extend(check("simulated drive (MCAP, 256 MiB)", &drive));
+    let street = measure(&d.join("street"), &d.join("out_street"), &[]);
+    failures.extend(check("synthetic street (1 GiB)", &street));
+    assert!(failures.is_empty(), "{failures:#?}");
+}
