@@ -180,7 +180,6 @@ fn check(name: &str, calls: &[Call]) -> Vec<String> {
     let mut failures = Vec::new();
     println!("{name}: {} stage calls", calls.len());
     let mut stages: Vec<&str> = calls.iter().map(|c| c.stage).collect();
-    stages.dedup();
     stages.sort();
     stages.dedup();
     for st in stages {

@@ -355,7 +355,6 @@ impl<P> Stitcher<P> {
         };
         let Some(rect) = e.rect else { return };
         let s = self.strip_m + 1e-6;
-        let inside = rect.expanded(-s);
         let root = (0u8, 0u64);
         let mut dropped_all = 0u64;
         for &slot in &e.tiles {
@@ -363,48 +362,34 @@ impl<P> Stitcher<P> {
                 continue;
             };
             let before = sum.records();
-            let (cx, cy) = (sum.core.x0, sum.core.y0);
-            // A core (inner) record pairs with a later tile whose zone holds the point: keep
-            // it while the square of half-width `strip_m` around it reaches outside the cell
-            // or into a part no arrived leaf covers.
-            let keep_inner = |r: &BorderRecord| {
-                let (x, y) = (cx + r.dx as f64, cy + r.dy as f64);
-                if !inside.contains(x, y) {
-                    return true;
-                }
-                !complete
-                    && !e.covered(
-                        root,
-                        rect,
-                        &Rect {
-                            x0: x - s,
-                            y0: y - s,
-                            x1: x + s,
-                            y1: y + s,
-                        },
-                    )
+            // Whether the square of half-width `half` around a record may still meet a tile
+            // to come: it reaches outside the cell or into a part no arrived leaf covers.
+            let needed = |x: f64, y: f64, half: f64| {
+                !rect.expanded(-half).contains(x, y)
+                    || (!complete
+                        && !e.covered(
+                            root,
+                            rect,
+                            &Rect {
+                                x0: x - half,
+                                y0: y - half,
+                                x1: x + half,
+                                y1: y + half,
+                            },
+                        ))
             };
-            // A buffer (outer) record pairs only with the tile whose core holds the point:
-            // keep it while that core may still come (outside the cell, or not covered).
-            let keep_outer = |r: &BorderRecord| {
-                let (x, y) = (cx + r.dx as f64, cy + r.dy as f64);
-                if !rect.contains(x, y) {
-                    return true;
-                }
-                !complete
-                    && !e.covered(
-                        root,
-                        rect,
-                        &Rect {
-                            x0: x,
-                            y0: y,
-                            x1: x,
-                            y1: y,
-                        },
-                    )
-            };
-            sum.inner.retain(keep_inner);
-            sum.outer.retain(keep_outer);
+            // A core (inner) record pairs with any later tile whose zone holds the point; a
+            // buffer (outer) record only with the tile whose core holds it.
+            let core = sum.core;
+            let at = |r: &BorderRecord| (core.x0 + r.dx as f64, core.y0 + r.dy as f64);
+            sum.inner.retain(|r| {
+                let (x, y) = at(r);
+                needed(x, y, s)
+            });
+            sum.outer.retain(|r| {
+                let (x, y) = at(r);
+                needed(x, y, 0.0)
+            });
             let dropped = before - sum.records();
             if dropped > 0 {
                 if dropped * 2 > before {
