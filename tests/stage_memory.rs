@@ -101,8 +101,8 @@ impl Stage for Measured {
     fn context_m(&self) -> Option<f64> {
         self.inner.context_m()
     }
-    fn far_cell_m(&self) -> Option<f64> {
-        self.inner.far_cell_m()
+    fn far_cells(&self) -> Option<tessera::tiling::FarCells> {
+        self.inner.far_cells()
     }
     fn max_class_code(&self) -> u8 {
         self.inner.max_class_code()

@@ -505,13 +505,8 @@ pub(super) fn lowest_per_cell(
             end += 1;
         }
         let cell = &sorted[start..end];
-        let support = (cell.len() / 32).clamp(1, 8);
-        let chosen = (0..cell.len())
-            .find(|&j| {
-                cell.get(j + support)
-                    .is_some_and(|&o| z(o) - z(cell[j]) <= window_m)
-            })
-            .unwrap_or(0);
+        let chosen =
+            cell_representative(cell.len(), cell.len(), |j| z(cell[j]), window_m).unwrap_or(0);
         for (j, &i) in cell.iter().enumerate() {
             if j == chosen {
                 lowest.push(i);
@@ -522,6 +517,30 @@ pub(super) fn lowest_per_cell(
         start = end;
     }
     (lowest, rest)
+}
+
+/// Position of a cell's representative in its points sorted by height: the lowest point with
+/// `support` more points within `window_m` above it (support grows with the cell's point count,
+/// 1 to 8), so that a few isolated low outliers are skipped; the lowest point when none has.
+///
+/// `count` is the cell's number of points, of which only the lowest `held` are known
+/// (`z(j)`, ascending, j < `held`). None when those do not decide it (a choice at or beyond
+/// `held - support` is possible). The one rule for [`lowest_per_cell`] (all points held) and
+/// for the far-buffer thinning of split tiles (`tiling::FarThin`), which keeps exactly the
+/// point this picks.
+pub fn cell_representative(
+    count: usize,
+    held: usize,
+    z: impl Fn(usize) -> f64,
+    window_m: f64,
+) -> Option<usize> {
+    let support = (count / 32).clamp(1, 8);
+    let found = (0..held.saturating_sub(support)).find(|&j| z(j + support) - z(j) <= window_m);
+    match found {
+        Some(j) => Some(j),
+        None if held >= count => Some(0),
+        None => None,
+    }
 }
 
 /// `f64` bits whose unsigned order is the numeric (total) order of the values.
@@ -537,6 +556,55 @@ fn ordered_bits(v: f64) -> u64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Knowing only the lowest heights of a cell either picks the same representative as the
+    /// whole cell or says it cannot (far-buffer thinning relies on this).
+    #[test]
+    fn representative_from_lowest_heights_agrees_with_whole_cell() {
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        let (mut decided, mut undecided) = (0, 0);
+        for _ in 0..3000 {
+            let count = 1 + (next() % 300) as usize;
+            let spread = [0.05, 0.4, 3.0][(next() % 3) as usize];
+            let outliers = (next() % 12) as usize;
+            let mut z: Vec<f64> = (0..count)
+                .map(|i| {
+                    let u = (next() % 10_000) as f64 / 10_000.0;
+                    // Sparse low outliers, 0.3–0.6 m apart, below a surface at 0..spread.
+                    if i < outliers.min(count - 1) {
+                        -0.3 - 0.5 * i as f64 - 0.3 * u
+                    } else {
+                        u * spread
+                    }
+                })
+                .collect();
+            z.sort_by(f64::total_cmp);
+            let whole = cell_representative(count, count, |j| z[j], 0.15).unwrap();
+            let support = (count / 32).clamp(1, 8);
+            for held in [1, 4, 16, 64] {
+                if held >= count {
+                    continue;
+                }
+                match cell_representative(count, held, |j| z[j], 0.15) {
+                    Some(j) => {
+                        assert_eq!(j, whole, "count {count}, held {held}");
+                        decided += 1;
+                    }
+                    None => {
+                        assert!(whole == 0 || whole + support >= held, "{whole} {held}");
+                        undecided += 1;
+                    }
+                }
+            }
+        }
+        assert!(decided > 1000 && undecided > 100, "{decided} {undecided}");
+    }
 
     /// A 0.5 m cell with a dense surface at z = 1 (64 points within 2 cm) and three sparse low
     /// outliers: the representative is the lowest surface point, the others are deferred.

@@ -7,6 +7,7 @@ use crate::config::GroundSection;
 use crate::error::{Error, Result};
 use crate::ground::{classify_ground, GroundClass};
 use crate::model::{RecordLayout, Tile};
+use crate::tiling::FarCells;
 
 /// ASPRS class codes written by the ground stage.
 pub mod class {
@@ -36,11 +37,14 @@ impl Stage for GroundStage {
     fn bytes_per_point(&self) -> usize {
         self.section.params.bytes_per_point()
     }
-    fn far_cell_m(&self) -> Option<f64> {
-        // Only one low point per `densify_cell_m` cell seeds and densifies the TIN; the rest
-        // are judged by the final pass, which only matters for points that are written.
-        let c = self.section.params.densify_cell_m;
-        (c > 0.0).then_some(c)
+    fn far_cells(&self) -> Option<FarCells> {
+        // Only one representative low point per `densify_cell_m` cell seeds and densifies the
+        // TIN; the rest are judged by the final pass, which only matters for written points.
+        let p = &self.section.params;
+        (p.densify_cell_m > 0.0).then_some(FarCells {
+            cell_m: p.densify_cell_m,
+            window_m: p.offset_m,
+        })
     }
     fn process(
         &self,

@@ -481,8 +481,9 @@ fn run_inner(ctx: &RunCtx, progress: ProgressFn) -> Result<Summary> {
 }
 
 /// Far-buffer thinning for split tiles: allowed when every stage that reads the whole buffer
-/// names a far cell ([`Stage::far_cell_m`]); points within the widest bounded context of the
-/// other stages, and at least within `tiling.split_dense_buffer_m`, are all kept.
+/// names its far cells ([`Stage::far_cells`]) and they agree; points within the widest bounded
+/// context of the other stages, and at least within `tiling.split_dense_buffer_m`, are all
+/// kept.
 fn far_thin(cfg: &Config, stages: &[Box<dyn Stage>]) -> Option<FarThin> {
     if !cfg.tiling.thin_split_buffers {
         return None;
@@ -492,17 +493,14 @@ fn far_thin(cfg: &Config, stages: &[Box<dyn Stage>]) -> Option<FarThin> {
         .filter(|s| s.needs_context())
         .map(|s| s.as_ref())
         .collect();
-    let whole: Vec<&dyn Stage> = readers
-        .iter()
-        .copied()
-        .filter(|s| s.context_m().is_none())
-        .collect();
-    let mut cell_m = f64::INFINITY;
-    for s in &whole {
-        cell_m = cell_m.min(s.far_cell_m()?);
-    }
-    if !cell_m.is_finite() {
-        return None;
+    let mut cells = None;
+    for s in readers.iter().filter(|s| s.context_m().is_none()) {
+        let c = s.far_cells()?;
+        // Two different representative rules would each need their own points: keep all.
+        if cells.is_some_and(|p| p != c) {
+            return None;
+        }
+        cells = Some(c);
     }
     let near_m = readers
         .iter()
@@ -510,7 +508,7 @@ fn far_thin(cfg: &Config, stages: &[Box<dyn Stage>]) -> Option<FarThin> {
         .fold(0.0f64, f64::max);
     Some(FarThin {
         near_m: near_m.max(cfg.tiling.split_dense_buffer_m),
-        cell_m,
+        cells: cells?,
     })
 }
 

@@ -40,11 +40,11 @@ pub trait Stage: Send + Sync {
     fn context_m(&self) -> Option<f64> {
         None
     }
-    /// For a stage reading the whole buffer (`context_m` None): a cell size such that, beyond
-    /// the other stages' context, the stage only needs the lowest points of each cell of that
-    /// size (aligned to absolute multiples). None: it needs every buffer point. Lets split
-    /// tiles thin their far buffers ([`crate::tiling::FarThin`]).
-    fn far_cell_m(&self) -> Option<f64> {
+    /// For a stage reading the whole buffer (`context_m` None): cells such that, beyond the
+    /// other stages' context, the stage only uses one representative point per cell, picked by
+    /// [`crate::ground::seeds::cell_representative`]. None: it needs every buffer point. Lets
+    /// split tiles thin their far buffers ([`crate::tiling::FarThin`]).
+    fn far_cells(&self) -> Option<crate::tiling::FarCells> {
         None
     }
     /// Largest classification code the stage may write (codes above 31 need point formats

@@ -4,7 +4,9 @@
 use super::spill::{for_each_spilled, spill_path, Part, SpillSet};
 use super::TileJob;
 use crate::error::{Error, Result};
+use crate::ground::seeds::cell_representative;
 use crate::model::{RecordLayout, Rect, Tile, TileName};
+use std::collections::{HashMap, HashSet};
 use std::path::Path;
 
 /// Points read per block when streaming spill files.
@@ -85,17 +87,46 @@ pub fn split_job(
     let xm = 0.5 * (job.core.x0 + job.core.x1);
     let ym = 0.5 * (job.core.y0 + job.core.y1);
     let outer: Vec<Rect> = quads.iter().map(|(_, r)| r.expanded(b)).collect();
-    let near: Vec<Option<Rect>> = quads
+    // Per child, the range of far-grid cells touching its near zone: those are kept whole.
+    let cell_m = far.map_or(1.0, |f| f.cells.cell_m);
+    let near: Vec<Option<[i64; 4]>> = quads
         .iter()
-        .map(|(_, r)| far.filter(|f| f.near_m < b).map(|f| r.expanded(f.near_m)))
+        .map(|(_, r)| {
+            far.filter(|f| f.near_m < b).map(|f| {
+                let n = r.expanded(f.near_m);
+                [
+                    cell_of(n.x0, cell_m),
+                    cell_of(n.y0, cell_m),
+                    cell_of(n.x1, cell_m),
+                    cell_of(n.y1, cell_m),
+                ]
+            })
+        })
         .collect();
     let mut keepers: Vec<FarKeeper> = (0..4)
-        .map(|_| FarKeeper::new(far.map_or(1.0, |f| f.cell_m), rl))
+        .map(|_| {
+            let rule = far.map_or(
+                FarCells {
+                    cell_m,
+                    window_m: 0.0,
+                },
+                |f| f.cells,
+            );
+            FarKeeper::new(rule, rl)
+        })
         .collect();
-    for (path, count, parent_core) in [
+    // The far cell of a point for child q, None when the child keeps it in full.
+    let far_cell = |q: usize, x: f64, y: f64| -> Option<(i64, i64)> {
+        let [cx0, cy0, cx1, cy1] = near[q]?;
+        let (cx, cy) = (cell_of(x, cell_m), cell_of(y, cell_m));
+        let inside = (cx0..=cx1).contains(&cx) && (cy0..=cy1).contains(&cy);
+        (!inside).then_some((cx, cy))
+    };
+    let parts = [
         (&job.core_path, job.n_core, true),
         (&job.buf_path, job.n_buf, false),
-    ] {
+    ];
+    for (path, count, parent_core) in parts {
         for_each_spilled(path, rl, count, BLOCK_POINTS, |pid, rec| {
             let [x, y, z] = layout.xyz(rec);
             // A parent core point belongs to exactly one child core, decided by the midlines
@@ -105,20 +136,41 @@ pub fn split_job(
                 if core_q == Some(q) {
                     set.push(slots[q], Part::Core, pid, rec)?;
                 } else if outer[q].contains(x, y) {
-                    match near[q] {
-                        Some(n) if !n.contains(x, y) => keepers[q].offer(x, y, z, pid, rec),
-                        _ => set.push(slots[q], Part::Buffer, pid, rec)?,
+                    match far_cell(q, x, y) {
+                        Some(key) => keepers[q].offer(key, z, pid, rec),
+                        None => set.push(slots[q], Part::Buffer, pid, rec)?,
                     }
                 }
             }
             Ok(())
         })?;
     }
+    // Cells whose lowest points left their representative open (a run of sparse low points):
+    // a second pass collects all their points. Rare (~0.1 % of far cells on street scans).
+    let undecided: Vec<_> = keepers.iter_mut().map(|k| k.undecided()).collect();
+    if undecided.iter().any(|u| !u.is_empty()) {
+        for (path, count, parent_core) in parts {
+            for_each_spilled(path, rl, count, BLOCK_POINTS, |pid, rec| {
+                let [x, y, z] = layout.xyz(rec);
+                let core_q =
+                    parent_core.then_some((x >= xm) as usize | (((y >= ym) as usize) << 1));
+                for q in 0..4 {
+                    if core_q != Some(q) && !undecided[q].is_empty() && outer[q].contains(x, y) {
+                        if let Some(key) = far_cell(q, x, y).filter(|k| undecided[q].contains(k)) {
+                            keepers[q].offer_all(key, z, pid, rec);
+                        }
+                    }
+                }
+                Ok(())
+            })?;
+        }
+    }
     remove_spill(job);
     let mut thinned = 0;
     for (q, keeper) in keepers.into_iter().enumerate() {
-        thinned += keeper.offered - keeper.kept() as u64;
-        keeper.drain(|pid, rec| set.push(slots[q], Part::Buffer, pid, rec))?;
+        let offered = keeper.offered;
+        let kept = keeper.drain(|pid, rec| set.push(slots[q], Part::Buffer, pid, rec))?;
+        thinned += offered - kept;
     }
     let mut out = Vec::new();
     let mut total_core = 0;
@@ -153,10 +205,20 @@ pub fn split_job(
     Ok((out, thinned))
 }
 
-/// Lowest points kept per far cell by [`FarThin`]. More than one so that the ground filter's
-/// choice of a cell's representative (the lowest point with another point close above it)
-/// still skips an isolated low outlier.
-pub const FAR_KEEP: usize = 8;
+/// Lowest points held per far cell while splitting. The representative is nearly always among
+/// the lowest few (the lowest point with 1–8 others within the ground window above it); a cell
+/// where these do not decide it keeps all of them (counted as undecided).
+pub const FAR_KEEP: usize = 16;
+
+/// The cells beyond the other stages' context in which a stage reading the whole buffer only
+/// uses one representative point (see [`crate::ground::seeds::cell_representative`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FarCells {
+    /// Cell size, metres (aligned to absolute multiples).
+    pub cell_m: f64,
+    /// Height window of the representative rule, metres.
+    pub window_m: f64,
+}
 
 /// Thinning of the far part of a split child's buffer.
 ///
@@ -165,59 +227,56 @@ pub const FAR_KEEP: usize = 8;
 /// buffer for every small child: at four levels a 3 m core carried a 43 m square of buffer
 /// (~200× its own points) and the split never converged on a simulated drive. Stages other
 /// than the ground filter work within their context of the core and keep every point there;
-/// beyond it the ground filter (with `densify_cell_m` > 0) only seeds and densifies from one
-/// low point per `densify_cell_m` cell, so the lowest [`FAR_KEEP`] points of each such cell
-/// (aligned to the same absolute grid) carry most of what it needs. Not all: the TIN's
-/// densification order and cell representatives shift a little, and the change ripples
-/// inwards; keeping full density to 5 m (the segment/label context) changed 0.03 % of the
-/// ground labels and 0.8 % of the segmentation of the CycloMedia tile split at 400 MiB
-/// against an untiled run (tests/stitch_metamorphic.rs), to 10 m 0.006 % and 0.17 %, to 15 m
-/// nothing (100 % / 100 %) — hence `tiling.split_dense_buffer_m` = 15 of the 20 m buffer.
+/// beyond it the ground filter (with `densify_cell_m` > 0) seeds and densifies only from one
+/// representative per `densify_cell_m` cell and labels the rest in a final pass whose result
+/// for buffer points nobody reads. So each far cell keeps exactly that representative, chosen
+/// by the filter's own rule from the cell's full point count, and the filter sees the same
+/// candidates as without thinning. Near or far is decided per whole cell (a cell touching the
+/// near zone is kept whole), so no cell is cut in two. (An earlier version kept the lowest 8
+/// points per cell: the filter then picked other representatives, and keeping full density
+/// only to 5 m changed 0.8 % of a split CycloMedia tile's segmentation; it needed 15 m.)
 /// Buffer points are never written, only core points are, so no output point is lost.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FarThin {
     /// Buffer points within this distance of the child's core are all kept, metres (at least
     /// the stages' contexts and `tiling.split_dense_buffer_m`).
     pub near_m: f64,
-    /// Cell of the far-zone grid, metres (aligned to absolute multiples).
-    pub cell_m: f64,
+    /// Cells and rule of the far zone.
+    pub cells: FarCells,
 }
 
 /// A kept far point: height, point id, slab slot.
 type Kept = (f64, u64, u32);
 
-/// The lowest [`FAR_KEEP`] points per cell of one child's far buffer, records in a slab.
+/// Per far cell of one child: its point count and lowest [`FAR_KEEP`] points (records in a
+/// slab), then its representative.
 struct FarKeeper {
-    cell_m: f64,
+    rule: FarCells,
     rl: usize,
-    /// Per cell: kept (z, point id, slab slot), sorted by (z, point id).
-    cells: std::collections::HashMap<(i64, i64), Vec<Kept>>,
+    /// Per cell: point count and kept (z, point id, slab slot), sorted by (z, point id).
+    cells: HashMap<(i64, i64), (u64, Vec<Kept>)>,
+    /// Cells whose lowest points do not decide the representative: all their points.
+    all: HashMap<(i64, i64), Vec<Kept>>,
     slab: Vec<u8>,
     offered: u64,
 }
 
 impl FarKeeper {
-    fn new(cell_m: f64, rl: usize) -> Self {
+    fn new(rule: FarCells, rl: usize) -> Self {
         FarKeeper {
-            cell_m,
+            rule,
             rl,
-            cells: Default::default(),
+            cells: HashMap::new(),
+            all: HashMap::new(),
             slab: Vec::new(),
             offered: 0,
         }
     }
 
-    fn kept(&self) -> usize {
-        self.slab.len() / self.rl
-    }
-
-    fn offer(&mut self, x: f64, y: f64, z: f64, pid: u64, rec: &[u8]) {
+    fn offer(&mut self, key: (i64, i64), z: f64, pid: u64, rec: &[u8]) {
         self.offered += 1;
-        let key = (
-            (x / self.cell_m).floor() as i64,
-            (y / self.cell_m).floor() as i64,
-        );
-        let cell = self.cells.entry(key).or_default();
+        let (count, cell) = self.cells.entry(key).or_default();
+        *count += 1;
         // Sorted by (z, point id): the result does not depend on the order points arrive in.
         let pos = cell.partition_point(|e| (e.0, e.1) < (z, pid));
         if cell.len() < FAR_KEEP {
@@ -233,16 +292,152 @@ impl FarKeeper {
         }
     }
 
-    /// Hands the kept points over ordered by cell, then height (deterministic).
-    fn drain(self, mut f: impl FnMut(u64, &[u8]) -> Result<()>) -> Result<()> {
-        let mut cells: Vec<_> = self.cells.into_iter().collect();
+    /// Cells whose held points do not decide the representative; prepares to receive all
+    /// their points ([`FarKeeper::offer_all`], second pass).
+    fn undecided(&mut self) -> HashSet<(i64, i64)> {
+        let w = self.rule.window_m;
+        let open: HashSet<(i64, i64)> = self
+            .cells
+            .iter()
+            .filter(|(_, (count, held))| {
+                let count = usize::try_from(*count).unwrap_or(usize::MAX);
+                cell_representative(count, held.len(), |j| held[j].0, w).is_none()
+            })
+            .map(|(k, _)| *k)
+            .collect();
+        for k in &open {
+            self.all.insert(*k, Vec::new());
+        }
+        open
+    }
+
+    /// Second pass: one point of an undecided cell.
+    fn offer_all(&mut self, key: (i64, i64), z: f64, pid: u64, rec: &[u8]) {
+        if let Some(all) = self.all.get_mut(&key) {
+            let slot = (self.slab.len() / self.rl) as u32;
+            self.slab.extend_from_slice(rec);
+            all.push((z, pid, slot));
+        }
+    }
+
+    /// Hands each cell's representative over, ordered by cell (deterministic); returns how
+    /// many points that is.
+    fn drain(mut self, mut f: impl FnMut(u64, &[u8]) -> Result<()>) -> Result<u64> {
+        let w = self.rule.window_m;
+        let mut cells: Vec<_> = self.cells.drain().collect();
         cells.sort_unstable_by_key(|c| c.0);
-        for (_, kept) in cells {
-            for (_, pid, slot) in kept {
+        let mut kept = 0;
+        for (key, (count, held)) in cells {
+            let chosen = match self.all.get_mut(&key) {
+                Some(all) => {
+                    all.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+                    cell_representative(all.len(), all.len(), |j| all[j].0, w).map(|j| all[j])
+                }
+                // Decided by its held points (`undecided` put every other cell in `all`).
+                None => {
+                    let count = usize::try_from(count).unwrap_or(usize::MAX);
+                    cell_representative(count, held.len(), |j| held[j].0, w).map(|j| held[j])
+                }
+            };
+            if let Some((_, pid, slot)) = chosen {
+                kept += 1;
                 let at = slot as usize * self.rl;
                 f(pid, &self.slab[at..at + self.rl])?;
             }
         }
-        Ok(())
+        Ok(kept)
+    }
+}
+
+/// Cell index of a coordinate on the absolute `cell_m` grid (the ground filter's cells).
+fn cell_of(v: f64, cell_m: f64) -> i64 {
+    (v / cell_m).floor() as i64
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Points of a few cells offered in scrambled order: each cell hands over exactly the point
+    /// the ground filter's rule picks from the whole cell (with its record), also the cells
+    /// whose lowest FAR_KEEP points leave it open (second pass).
+    #[test]
+    fn far_keeper_hands_over_each_cells_representative() {
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        let rule = FarCells {
+            cell_m: 0.5,
+            window_m: 0.15,
+        };
+        let mut keeper = FarKeeper::new(rule, 16);
+        let mut expected = Vec::new();
+        let mut offers = Vec::new();
+        let mut open = 0;
+        let mut pid = 0u64;
+        for cell in 0..200i64 {
+            let count = 1 + (next() % 200) as usize;
+            let outliers = (next() % 24) as usize;
+            let spread = [0.05, 0.5, 4.0][(next() % 3) as usize];
+            let mut pts: Vec<(f64, u64)> = (0..count)
+                .map(|i| {
+                    pid += 1;
+                    let u = (next() % 1000) as f64 / 1000.0;
+                    let z = if i < outliers.min(count - 1) {
+                        -0.3 - 0.4 * i as f64
+                    } else {
+                        u * spread
+                    };
+                    (z, pid)
+                })
+                .collect();
+            for &(z, p) in &pts {
+                offers.push(((cell, -cell), z, p));
+            }
+            pts.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            let held = count.min(FAR_KEEP);
+            if cell_representative(count, held, |j| pts[j].0, 0.15).is_none() {
+                open += 1;
+            }
+            let whole = cell_representative(count, count, |j| pts[j].0, 0.15).unwrap();
+            expected.push(pts[whole].1);
+        }
+        // Scramble the arrival order.
+        for i in (1..offers.len()).rev() {
+            offers.swap(i, (next() % (i as u64 + 1)) as usize);
+        }
+        let rec = |z: f64, p: u64| {
+            let mut rec = [0u8; 16];
+            rec[..8].copy_from_slice(&p.to_le_bytes());
+            rec[8..].copy_from_slice(&z.to_le_bytes());
+            rec
+        };
+        for &(key, z, p) in &offers {
+            keeper.offer(key, z, p, &rec(z, p));
+        }
+        let undecided = keeper.undecided();
+        assert_eq!(undecided.len(), open);
+        assert!(open > 0 && open < 200, "{open}");
+        for &(key, z, p) in &offers {
+            if undecided.contains(&key) {
+                keeper.offer_all(key, z, p, &rec(z, p));
+            }
+        }
+        let mut got = Vec::new();
+        let kept = keeper
+            .drain(|p, rec| {
+                assert_eq!(u64::from_le_bytes(rec[..8].try_into().unwrap()), p);
+                got.push(p);
+                Ok(())
+            })
+            .unwrap();
+        assert_eq!(kept as usize, got.len());
+        got.sort_unstable();
+        expected.sort_unstable();
+        assert_eq!(got, expected);
     }
 }

@@ -6,7 +6,7 @@ pub mod load;
 pub mod spill;
 
 pub use grid::Grid;
-pub use load::{load_tile, split_job, FarThin, FAR_KEEP};
+pub use load::{load_tile, split_job, FarCells, FarThin, FAR_KEEP};
 pub use spill::{Part, SpillSet, TileMap};
 
 use crate::error::Result;
