@@ -143,22 +143,31 @@ impl BudgetPlan {
         })
     }
 
-    /// Whether a tile of `n_core` + `n_buf` points with buffer width `buffer_m` fits its share
-    /// of the budget. Stages that work only within `c` metres of the core are charged their
-    /// context bytes for the core points plus the fraction c / buffer_m of the buffer points
-    /// (exact for a drive crossing the tile, points spread along one axis; an overestimate for
-    /// points spread over the area) and their tile bytes for every point; 25 % slack on both.
-    pub fn fits(&self, n_core: u64, n_buf: u64, buffer_m: f64) -> bool {
+    /// Distance from the core within which the tiler and the quadtree split count buffer points
+    /// ([`crate::tiling::TileJob::n_near`]): the widest bounded stage context.
+    pub fn near_m(&self) -> f64 {
+        self.stages
+            .iter()
+            .filter_map(|m| m.context_m)
+            .fold(0.0, f64::max)
+    }
+
+    /// Whether a tile of `n_core` + `n_buf` points, `n_near` of the buffer points within
+    /// [`BudgetPlan::near_m`] of the core, fits its share of the budget. Stages that work only
+    /// within their context of the core are charged their context bytes for the core and near
+    /// points (counted while binning, so exact whatever the point layout: an estimate from
+    /// the context's share of the buffer width undercharged split tiles threefold, whose
+    /// thinned buffers are mostly near points) and their tile bytes for every point; 25 %
+    /// slack on both.
+    pub fn fits(&self, n_core: u64, n_buf: u64, n_near: u64) -> bool {
         let n = n_core + n_buf;
         let stage = self
             .stages
             .iter()
             .map(|m| {
                 let near = match m.context_m {
-                    Some(c) if buffer_m > 0.0 && c < buffer_m => {
-                        n_core + (n_buf as f64 * c / buffer_m).ceil() as u64
-                    }
-                    _ => n,
+                    Some(_) => n_core + n_near.min(n_buf),
+                    None => n,
                 };
                 (near * m.context_bytes as u64 + n * m.tile_bytes as u64) * 5 / 4
             })
@@ -225,10 +234,12 @@ mod tests {
         };
         let p = BudgetPlan::with_stages(1024, 34, &[StageMemory::whole(96), ctx], 2).unwrap();
         let m = p.max_tile_points;
-        assert!(p.fits(m / 2, m / 2, 20.0));
+        assert_eq!(p.near_m(), 5.0);
+        assert!(p.fits(m / 2, m / 2, m / 8));
         // Twice the worst-case limit fits when most points are buffer the stage ignores...
-        assert!(p.fits(m / 4, 7 * m / 4, 20.0));
-        // ...but not when they are core points.
-        assert!(!p.fits(2 * m, 0, 20.0));
+        assert!(p.fits(m / 4, 7 * m / 4, m / 4));
+        // ...but not when they lie within its context, nor when they are core points.
+        assert!(!p.fits(m / 4, 7 * m / 4, 7 * m / 4));
+        assert!(!p.fits(2 * m, 0, 0));
     }
 }

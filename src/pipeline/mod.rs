@@ -23,7 +23,7 @@ use crate::io::output::{segment_table_tsv, SegmentIdType, TileSegments};
 use crate::io::{scan_inputs, write_atomic, InputSet, TileWriter};
 use crate::report::{peak_rss_mb, Summary};
 use crate::stitch::BorderSummary;
-use crate::tiling::{load_tile, schedule, split_job, FarThin, Grid, TileJob, Tiler};
+use crate::tiling::{load_tile, schedule, split_job, FarThin, Grid, SplitParams, TileJob, Tiler};
 use budget::BudgetPlan;
 use collect::{Collector, Processed, TileMeta, TileOutput, ToWriter};
 use crossbeam_channel::{bounded, Receiver, Sender};
@@ -354,7 +354,14 @@ fn run_inner(ctx: &RunCtx, progress: ProgressFn) -> Result<Summary> {
             let release_tx = release_tx;
             let t = Instant::now();
             let r = (|| -> Result<()> {
-                let mut tiler = Tiler::new(grid, layout, &set.files, spill_dir, plan.spill_bytes);
+                let mut tiler = Tiler::new(
+                    grid,
+                    layout,
+                    &set.files,
+                    spill_dir,
+                    plan.spill_bytes,
+                    plan.near_m(),
+                );
                 let announce = |tiler: &mut Tiler| -> bool {
                     let cells = tiler.take_releases();
                     match &release_tx {
@@ -533,22 +540,22 @@ fn work(job: TileJob, ctx: &RunCtx, res_tx: &Sender<ToWriter>) -> Result<()> {
     let mut was_split = false;
     let mut thinned = 0;
     while let Some(job) = todo.pop() {
-        if !plan.fits(job.n_core, job.n_buf, job.buffer_m) {
+        if !plan.fits(job.n_core, job.n_buf, job.n_near) {
             was_split = true;
-            let (children, dropped) = split_job(
-                &job,
-                &set.layout,
-                spill_dir,
-                cfg.tiling.min_tile_size_m,
-                plan.spill_bytes / plan.workers.max(1),
-                plan.max_tile_points,
-                far_thin,
-            )?;
+            let params = SplitParams {
+                min_tile_size_m: cfg.tiling.min_tile_size_m,
+                buffer_bytes: plan.spill_bytes / plan.workers.max(1),
+                max_points: plan.max_tile_points,
+                near_m: plan.near_m(),
+                far: far_thin,
+            };
+            let (children, dropped) = split_job(&job, &set.layout, spill_dir, params)?;
             tracing::debug!(
-                "tile {}: {} core + {} buffer points do not fit; split into {} children ({} far buffer copies thinned)",
+                "tile {}: {} core + {} buffer points ({} near) do not fit; split into {} children ({} far buffer copies thinned)",
                 job.name,
                 job.n_core,
                 job.n_buf,
+                job.n_near,
                 children.len(),
                 dropped
             );

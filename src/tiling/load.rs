@@ -47,30 +47,51 @@ fn remove_spill(job: &TileJob) {
     let _ = std::fs::remove_file(&job.buf_path);
 }
 
+/// How [`split_job`] splits.
+#[derive(Debug, Clone, Copy)]
+pub struct SplitParams {
+    /// Smallest core edge, metres: a split below it is a budget error.
+    pub min_tile_size_m: f64,
+    /// Bound on the children's spill write buffers, bytes.
+    pub buffer_bytes: usize,
+    /// Points a tile may hold at this budget (for the error message).
+    pub max_points: u64,
+    /// Buffer points within this distance of a child's core are counted
+    /// ([`TileJob::n_near`]).
+    pub near_m: f64,
+    /// Far-buffer thinning, if any ([`FarThin`]).
+    pub far: Option<FarThin>,
+}
+
 /// Splits a tile into its four quadrants, streaming its spill files into the children's.
 /// Children without core points are dropped (their buffer points are written by their own
 /// core tiles). Fails when the quadrants would be narrower than `min_tile_size_m`.
 ///
-/// With `far` set, a child's buffer points farther than `far.near_m` from its core are thinned
-/// to the lowest [`FAR_KEEP`] points of each `far.cell_m` cell (see [`FarThin`]); the second
-/// value returned counts the buffer point copies dropped that way.
+/// With `far` set, a child's far buffer cells keep only their representative point (see
+/// [`FarThin`]); the second value returned counts the buffer point copies dropped that way.
 pub fn split_job(
     job: &TileJob,
     layout: &RecordLayout,
     spill_dir: &Path,
-    min_tile_size_m: f64,
-    buffer_bytes: usize,
-    max_points: u64,
-    far: Option<FarThin>,
+    params: SplitParams,
 ) -> Result<(Vec<TileJob>, u64)> {
+    let SplitParams {
+        min_tile_size_m,
+        buffer_bytes,
+        max_points,
+        near_m,
+        far,
+    } = params;
     let half = job.core.width() / 2.0;
     if half < min_tile_size_m {
         return Err(Error::Budget(format!(
-            "tile {}: {} points (core {} + buffer {}) in {:.3} m × {:.3} m exceed the {} points a tile may hold at this memory budget, and splitting further would go below tiling.min_tile_size_m = {} m; raise --memory-budget or lower tiling.buffer_m",
+            "tile {}: {} points (core {} + buffer {}, {} of them within {} m of the core) in {:.3} m × {:.3} m exceed what a tile may hold at this memory budget (about {} points), and splitting further would go below tiling.min_tile_size_m = {} m; raise --memory-budget, use fewer --threads (each worker holds one tile), or narrow the stages' contexts (segment.buffer_m, label.buffer_m) or tiling.buffer_m",
             job.name,
             job.n_core + job.n_buf,
             job.n_core,
             job.n_buf,
+            job.n_near,
+            near_m,
             job.core.width(),
             job.core.width(),
             max_points,
@@ -87,6 +108,7 @@ pub fn split_job(
     let xm = 0.5 * (job.core.x0 + job.core.x1);
     let ym = 0.5 * (job.core.y0 + job.core.y1);
     let outer: Vec<Rect> = quads.iter().map(|(_, r)| r.expanded(b)).collect();
+    let counted: Vec<Rect> = quads.iter().map(|(_, r)| r.expanded(near_m)).collect();
     // Per child, the range of far-grid cells touching its near zone: those are kept whole.
     let cell_m = far.map_or(1.0, |f| f.cells.cell_m);
     let near: Vec<Option<[i64; 4]>> = quads
@@ -138,7 +160,12 @@ pub fn split_job(
                 } else if outer[q].contains(x, y) {
                     match far_cell(q, x, y) {
                         Some(key) => keepers[q].offer(key, z, pid, rec),
-                        None => set.push(slots[q], Part::Buffer, pid, rec)?,
+                        None => {
+                            set.push(slots[q], Part::Buffer, pid, rec)?;
+                            if counted[q].contains(x, y) {
+                                set.count_near(slots[q]);
+                            }
+                        }
                     }
                 }
             }
@@ -175,7 +202,8 @@ pub fn split_job(
     let mut out = Vec::new();
     let mut total_core = 0;
     for (cid, rect) in quads {
-        let (n_core, n_buf) = set.finish(cid)?;
+        let counts = set.finish(cid)?;
+        let (n_core, n_buf) = (counts.core, counts.buf);
         total_core += n_core;
         let child = TileJob {
             id: cid,
@@ -189,6 +217,7 @@ pub fn split_job(
             buf_path: spill_path(spill_dir, cid, Part::Buffer),
             n_core,
             n_buf,
+            n_near: counts.near,
         };
         if n_core == 0 {
             remove_spill(&child);
@@ -439,5 +468,121 @@ mod tests {
         got.sort_unstable();
         expected.sort_unstable();
         assert_eq!(got, expected);
+    }
+
+    /// A split of a tile with a random cloud: every child's near zone (core + 5 m) holds all
+    /// its points and is counted exactly in `n_near`; beyond it at most one point per far
+    /// cell remains; every parent core point lands in exactly one child core.
+    #[test]
+    fn split_counts_near_points_and_thins_only_far_cells() {
+        use crate::model::TileId;
+        use las::{point::Format, Transform, Vector};
+        let dir = tempfile::tempdir().unwrap();
+        let t = Transform {
+            scale: 0.01,
+            offset: 0.0,
+        };
+        let layout = RecordLayout::new(Format::new(0).unwrap(), Vector { x: t, y: t, z: t });
+        let id = TileId::grid(0, 0);
+        let core = Rect {
+            x0: 0.0,
+            y0: 0.0,
+            x1: 40.0,
+            y1: 40.0,
+        };
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state % 1_000_000) as f64 / 1_000_000.0
+        };
+        let mut set = SpillSet::new(dir.path(), 1 << 20);
+        let slot = set.slot(id);
+        let mut points = Vec::new();
+        for pid in 0..60_000u64 {
+            let (x, y, z) = (-20.0 + 80.0 * next(), -20.0 + 80.0 * next(), 3.0 * next());
+            let mut rec = vec![0u8; layout.record_len];
+            for (k, v) in [x, y, z].into_iter().enumerate() {
+                let raw = (v / 0.01).round() as i32;
+                rec[4 * k..4 * k + 4].copy_from_slice(&raw.to_le_bytes());
+            }
+            let [x, y, _] = layout.xyz(&rec);
+            let part = if core.contains(x, y) {
+                Part::Core
+            } else {
+                Part::Buffer
+            };
+            set.push(slot, part, pid, &rec).unwrap();
+            points.push((x, y, part));
+        }
+        let counts = set.finish(id).unwrap();
+        let job = TileJob {
+            id,
+            name: TileName {
+                id,
+                origin: (0.0, 0.0),
+            },
+            core,
+            buffer_m: 20.0,
+            core_path: spill_path(dir.path(), id, Part::Core),
+            buf_path: spill_path(dir.path(), id, Part::Buffer),
+            n_core: counts.core,
+            n_buf: counts.buf,
+            n_near: 0,
+        };
+        let far = FarThin {
+            near_m: 5.0,
+            cells: FarCells {
+                cell_m: 0.5,
+                window_m: 0.15,
+            },
+        };
+        let params = SplitParams {
+            min_tile_size_m: 1.0,
+            buffer_bytes: 1 << 20,
+            max_points: 1,
+            near_m: 5.0,
+            far: Some(far),
+        };
+        let (children, thinned) = split_job(&job, &layout, dir.path(), params).unwrap();
+        assert_eq!(children.len(), 4);
+        assert!(thinned > 0);
+        let mut cores = 0;
+        for child in &children {
+            let near = child.core.expanded(5.0);
+            let outer = child.core.expanded(20.0);
+            let expect_near = points
+                .iter()
+                .filter(|&&(x, y, _)| near.contains(x, y) && !child.core.contains(x, y))
+                .count() as u64;
+            assert_eq!(child.n_near, expect_near, "{}", child.name);
+            let tile = load_tile(child, &layout).unwrap();
+            cores += tile.n_core;
+            assert!(tile.xyz[..tile.n_core]
+                .iter()
+                .all(|p| child.core.contains(p[0], p[1])));
+            let mut far_cells = HashSet::new();
+            let mut in_near = 0;
+            for p in &tile.xyz[tile.n_core..] {
+                assert!(outer.contains(p[0], p[1]));
+                if near.contains(p[0], p[1]) {
+                    in_near += 1;
+                } else {
+                    let key = (cell_of(p[0], 0.5), cell_of(p[1], 0.5));
+                    // Cells touching the near zone are kept whole; the others keep one point.
+                    let touches = key.0 >= cell_of(near.x0, 0.5)
+                        && key.0 <= cell_of(near.x1, 0.5)
+                        && key.1 >= cell_of(near.y0, 0.5)
+                        && key.1 <= cell_of(near.y1, 0.5);
+                    assert!(
+                        touches || far_cells.insert(key),
+                        "two points in far cell {key:?}"
+                    );
+                }
+            }
+            assert_eq!(in_near, expect_near);
+        }
+        assert_eq!(cores as u64, job.n_core);
     }
 }

@@ -6,7 +6,7 @@ pub mod load;
 pub mod spill;
 
 pub use grid::Grid;
-pub use load::{load_tile, split_job, FarCells, FarThin, FAR_KEEP};
+pub use load::{load_tile, split_job, FarCells, FarThin, SplitParams, FAR_KEEP};
 pub use spill::{Part, SpillSet, TileMap};
 
 use crate::error::Result;
@@ -34,6 +34,9 @@ pub struct TileJob {
     pub n_core: u64,
     /// Buffer points in the spill file.
     pub n_buf: u64,
+    /// Of those, the points within `near_m` of the core (the stages' widest bounded context):
+    /// what those stages hold (`BudgetPlan::fits`).
+    pub n_near: u64,
 }
 
 struct OpenTile {
@@ -56,6 +59,8 @@ pub struct Tiler<'a> {
     last: Option<(i64, i64, usize)>,
     /// Cells released since the last [`Tiler::take_releases`] (for the stitcher).
     releases: Vec<CellRelease>,
+    /// Buffer points within this distance of a tile's core are counted ([`TileJob::n_near`]).
+    near_m: f64,
 }
 
 fn reach(file: &InputFile, layout: &RecordLayout) -> Rect {
@@ -73,8 +78,10 @@ impl<'a> Tiler<'a> {
         files: &'a [InputFile],
         spill_dir: &Path,
         spill_bytes: usize,
+        near_m: f64,
     ) -> Self {
         Tiler {
+            near_m,
             grid,
             layout,
             files,
@@ -114,10 +121,18 @@ impl<'a> Tiler<'a> {
                 let r = grid.cell_rect(ix, iy);
                 if x < r.x0 + b || x >= r.x1 - b || y < r.y0 + b || y >= r.y1 - b {
                     let mut err = Ok(());
+                    let near_m = self.near_m;
                     grid.assign(x, y, |tile, is_core| {
                         if !is_core && err.is_ok() {
                             let s = self.open_slot(tile);
                             err = self.spill.push(s, Part::Buffer, pid, rec);
+                            if grid
+                                .cell_rect(tile.ix, tile.iy)
+                                .expanded(near_m)
+                                .contains(x, y)
+                            {
+                                self.spill.count_near(s);
+                            }
                         }
                     });
                     err?;
@@ -210,7 +225,8 @@ impl<'a> Tiler<'a> {
             .collect();
         for (id, open_neighbours) in ids.into_iter().zip(open_neighbours) {
             self.open.remove(&id);
-            let (n_core, n_buf) = self.spill.finish(id)?;
+            let counts = self.spill.finish(id)?;
+            let (n_core, n_buf) = (counts.core, counts.buf);
             let core = self.grid.cell_rect(id.ix, id.iy);
             let job = TileJob {
                 id,
@@ -224,6 +240,7 @@ impl<'a> Tiler<'a> {
                 buf_path: spill::spill_path(&self.spill_dir, id, Part::Buffer),
                 n_core,
                 n_buf,
+                n_near: counts.near,
             };
             self.releases.push(CellRelease {
                 cell: (id.ix, id.iy),

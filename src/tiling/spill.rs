@@ -68,6 +68,8 @@ struct Slot {
     flushed: (u64, u64),
     /// Points still in the buffers (core, buffer).
     held: (u64, u64),
+    /// Buffer points counted as near the core ([`SpillSet::count_near`]).
+    near: u64,
 }
 
 /// A set of append-only spill files with one shared bound on buffered bytes. When the bound is
@@ -175,15 +177,37 @@ impl SpillSet {
 
     /// Flushes a tile's buffers and returns its (core, buffer) point counts; the tile's spill
     /// files are then complete and belong to the caller.
-    pub fn finish(&mut self, id: TileId) -> Result<(u64, u64)> {
+    pub fn finish(&mut self, id: TileId) -> Result<SpillCounts> {
         let Some(slot) = self.index.remove(&id) else {
-            return Ok((0, 0));
+            return Ok(SpillCounts::default());
         };
         self.flush_slot(slot)?;
         let s = std::mem::take(&mut self.slots[slot]);
         self.free.push(slot);
-        Ok(s.flushed)
+        Ok(SpillCounts {
+            core: s.flushed.0,
+            buf: s.flushed.1,
+            near: s.near,
+        })
     }
+
+    /// Counts one buffer point of a slot as lying within the near distance of its core (the
+    /// stages' widest bounded context), for the memory plan.
+    #[inline]
+    pub fn count_near(&mut self, slot: usize) {
+        self.slots[slot].near += 1;
+    }
+}
+
+/// Points written to a tile's spill files.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct SpillCounts {
+    /// Core points.
+    pub core: u64,
+    /// Buffer points.
+    pub buf: u64,
+    /// Buffer points counted near the core ([`SpillSet::count_near`]).
+    pub near: u64,
 }
 
 /// Streams a spill file in blocks of at most `block_points`, calling `f(id, record)`.
