@@ -85,7 +85,7 @@ impl CellState {
 }
 
 /// The grid cell's core rectangle from one of its quadtree leaves.
-fn cell_rect(leaf: &TileId, core: &Rect) -> Rect {
+pub(super) fn cell_rect(leaf: &TileId, core: &Rect) -> Rect {
     let w = core.width() * (1u64 << leaf.level) as f64;
     let h = (core.y1 - core.y0) * (1u64 << leaf.level) as f64;
     let (mut x0, mut y0) = (core.x0, core.y0);
