@@ -28,7 +28,7 @@
 //! other tile keeps one piece apart — rare for planar segments, whose pieces in a strip stay
 //! connected.
 
-use super::summary::{cell_before, BorderRecord, BorderSummary};
+use super::summary::{tile_before, BorderRecord, BorderSummary};
 use super::StitchParams;
 use std::collections::HashMap;
 
@@ -46,17 +46,16 @@ pub struct PairMatch {
 }
 
 /// The records of `s` lying in its overlap with tile `o`: its buffer records inside `o`'s
-/// core and its core records inside `o`'s zone. Tiles of two different grid cells are matched
-/// on the earlier cell's core points only (the later cell's tiles keep no buffer records of
-/// them, see [`super::summary::later_cell`]), so each side counts just that part.
+/// core and its core records inside `o`'s zone. Two tiles are matched on the earlier one's
+/// core points only (no tile keeps buffer records of points in later tiles, see
+/// [`super::summary::later_point`]), so each side counts just that part.
 fn overlap_records<'a>(
     s: &'a BorderSummary,
     o: &BorderSummary,
     strip_m: f64,
 ) -> impl Iterator<Item = &'a BorderRecord> + 'a {
-    let same_cell = (s.tile.ix, s.tile.iy) == (o.tile.ix, o.tile.iy);
-    let use_outer = same_cell || cell_before(&o.tile, &s.tile);
-    let use_inner = same_cell || cell_before(&s.tile, &o.tile);
+    let use_outer = tile_before(&o.tile, &s.tile);
+    let use_inner = tile_before(&s.tile, &o.tile);
     let oc = o.core;
     let oz = o.core.expanded(strip_m);
     let outer = s.outer.iter().filter(move |r| {
