@@ -390,13 +390,8 @@ mod tests {
     /// whose lowest FAR_KEEP points leave it open (second pass).
     #[test]
     fn far_keeper_hands_over_each_cells_representative() {
-        let mut state = 0x2545_f491_4f6c_dd1du64;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            state
-        };
+        let mut rng = crate::synth::scene::layout::Rng(0x2545_f491_4f6c_dd1d);
+        let mut next = move || rng.next();
         let rule = FarCells {
             cell_m: 0.5,
             window_m: 0.15,
@@ -488,13 +483,8 @@ mod tests {
             x1: 40.0,
             y1: 40.0,
         };
-        let mut state = 0x9e37_79b9_7f4a_7c15u64;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state % 1_000_000) as f64 / 1_000_000.0
-        };
+        let mut rng = crate::synth::scene::layout::Rng(0x9e37_79b9_7f4a_7c15);
+        let mut next = move || rng.u();
         let mut set = SpillSet::new(dir.path(), 1 << 20);
         let slot = set.slot(id);
         let mut points = Vec::new();
