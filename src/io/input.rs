@@ -342,20 +342,59 @@ pub fn scan_inputs(inputs: &[PathBuf], point_format: Option<u8>) -> Result<Input
     })
 }
 
+impl InputFile {
+    /// Where this file's points must lie: finite, within the header's xy bounds widened by
+    /// 1.5 scale units (writers round bounds and coordinates independently). The tiler relies
+    /// on it to know when a tile is complete, and checks every point.
+    pub fn accepted(&self) -> Rect {
+        let tol = |s: f64| 1.5 * s.abs() + 1e-9;
+        let t = self.header.transforms();
+        let b = self.bounds;
+        Rect {
+            x0: b.x0 - tol(t.x.scale),
+            y0: b.y0 - tol(t.y.scale),
+            x1: b.x1 + tol(t.x.scale),
+            y1: b.y1 + tol(t.y.scale),
+        }
+    }
+
+    /// Whether a point passes [`InputFile::accepted`] (`rect` is its value).
+    #[inline]
+    pub fn accepts(rect: &Rect, [x, y, z]: [f64; 3]) -> bool {
+        z.is_finite() && x >= rect.x0 && x <= rect.x1 && y >= rect.y0 && y <= rect.y1
+    }
+
+    /// The error for point `index` of this file failing [`InputFile::accepts`].
+    pub fn rejected(&self, index: u64, [x, y, z]: [f64; 3]) -> Error {
+        let b = self.bounds;
+        Error::bad_input(
+            &self.path,
+            format!(
+                "point {index} at ({x}, {y}, {z}) lies outside the header bounds [{}, {}] × [{}, {}] or is not finite",
+                b.x0, b.x1, b.y0, b.y1
+            ),
+        )
+    }
+}
+
 /// Streams one file's points in chunks of `chunk_points`, converted to `layout`, into `emit`
-/// (`emit(first_point_index, records)`). The chunk buffers are reused between calls.
-///
-/// Every point is checked: coordinates finite and inside the header's bounds (the tiler
-/// relies on them to know when a tile is complete).
+/// (`emit(first_point_index, records)`); `records.raw_bytes()` are records in `layout`.
+/// Chunks are filled in place (`fill_points`) in buffers taken from `spare` when it has one,
+/// and handed over whole, so this thread goes straight back to decoding (parallel LAZ
+/// decoding waits for it) and the receiver returns them for reuse. Points are not checked
+/// here: see [`InputFile::accepted`].
 pub fn read_file_chunks(
     file: &InputFile,
     layout: &RecordLayout,
     chunk_points: usize,
-    mut emit: impl FnMut(u64, &[u8]) -> Result<()>,
+    mut spare: impl FnMut() -> Option<PointData>,
+    mut emit: impl FnMut(u64, PointData) -> Result<()>,
 ) -> Result<u64> {
+    if let Some(chunks) = laz_chunks(file)? {
+        return read_laz_chunks(file, layout, chunk_points, &chunks, spare, emit);
+    }
     let path = &file.path;
     let mut reader = Reader::from_path(path).map_err(|e| Error::las(path, e))?;
-    let mut data: PointData = PointDataBuilder::new().for_header(reader.header()).build();
     let same = base_format(*reader.header().point_format()) == layout.format
         && reader.header().transforms() == &layout.transforms;
     // Parallel LAZ decompression works on whole LAZ chunks: ask for a multiple of
@@ -367,15 +406,17 @@ pub fn read_file_chunks(
         }
         _ => chunk_points,
     };
-    let mut converted: Vec<u8> = Vec::new();
+    // Conversion decodes into this buffer and emits a converted copy.
+    let mut decoded: Option<PointData> = None;
     let mut done: u64 = 0;
     let total = file.points;
-    let tol = |s: f64| 1.5 * s.abs() + 1e-9;
-    let t = reader.header().transforms();
-    let (tx, ty) = (tol(t.x.scale), tol(t.y.scale));
-    let b = file.bounds;
     while done < total {
         let want = (total - done).min(chunk_points as u64);
+        let mut data = match decoded.take() {
+            Some(d) => d,
+            None => spare()
+                .unwrap_or_else(|| PointDataBuilder::new().for_header(reader.header()).build()),
+        };
         let got = reader
             .fill_points(want, &mut data)
             .map_err(|e| {
@@ -393,35 +434,200 @@ pub fn read_file_chunks(
                 format!("header announces {total} points but the data ends after {done}"),
             ));
         }
-        let records: &[u8] = if same {
-            data.raw_bytes()
+        if same {
+            emit(done, data)?;
         } else {
-            converted.clear();
+            let mut converted = Vec::with_capacity(got as usize * layout.record_len);
             convert_chunk(&data, layout, &mut converted)
                 .map_err(|e| Error::bad_input(path, format!("point {done}+: {e}")))?;
-            &converted
-        };
-        for (i, rec) in records.chunks_exact(layout.record_len).enumerate() {
-            let [x, y, z] = layout.xyz(rec);
-            if !(x.is_finite() && y.is_finite() && z.is_finite())
-                || x < b.x0 - tx
-                || x > b.x1 + tx
-                || y < b.y0 - ty
-                || y > b.y1 + ty
-            {
-                return Err(Error::bad_input(
-                    path,
-                    format!(
-                        "point {} at ({x}, {y}, {z}) lies outside the header bounds [{}, {}] × [{}, {}] or is not finite",
-                        done + i as u64, b.x0, b.x1, b.y0, b.y1
-                    ),
-                ));
-            }
+            let out = PointDataBuilder::new()
+                .with_format(layout.format)
+                .with_transforms(layout.transforms)
+                .build_from_bytes(converted)
+                .map_err(|e| Error::las(path, e))?;
+            decoded = Some(data);
+            emit(done, out)?;
         }
-        emit(done, records)?;
         done += got;
     }
     Ok(done)
+}
+
+/// Largest LAZ chunk decoded whole, points; files with larger chunks are read through the
+/// `las` reader in pieces instead.
+const MAX_WHOLE_CHUNK: u64 = 1 << 20;
+
+/// The compressed chunks of a LAZ file, in file order.
+struct LazChunks {
+    vlr: laz::LazVlr,
+    /// Byte offset of the first chunk.
+    start: u64,
+    /// (points, bytes) per chunk.
+    chunks: Vec<(u64, u64)>,
+}
+
+/// The chunk layout of a LAZ input, or None for LAS files and LAZ files whose chunks are too
+/// big to decode whole.
+fn laz_chunks(file: &InputFile) -> Result<Option<LazChunks>> {
+    let header = &file.header;
+    if !header.point_format().is_compressed {
+        return Ok(None);
+    }
+    let path = &file.path;
+    let vlr = header.laz_vlr().map_err(|e| Error::las(path, e))?;
+    let mut f = BufReader::new(File::open(path).map_err(|e| Error::io(path, e))?);
+    let raw = las::raw::Header::read_from(&mut f).map_err(|e| Error::las(path, e))?;
+    let start = raw.offset_to_point_data as u64;
+    f.seek(SeekFrom::Start(start))
+        .map_err(|e| Error::io(path, e))?;
+    let table = laz::laszip::ChunkTable::read_from(&mut f, &vlr).map_err(|e| {
+        Error::bad_input(
+            path,
+            format!("truncated or corrupt LAZ: cannot read the chunk table ({e})"),
+        )
+    })?;
+    let mut left = file.points;
+    let mut chunks = Vec::with_capacity(table.len());
+    for e in table.as_ref() {
+        if left == 0 {
+            break;
+        }
+        // Fixed-size chunks: the table holds the nominal size, the last chunk may be shorter.
+        let n = if vlr.uses_variable_size_chunks() {
+            e.point_count
+        } else {
+            u64::from(vlr.chunk_size())
+        }
+        .min(left);
+        if n > MAX_WHOLE_CHUNK {
+            return Ok(None);
+        }
+        chunks.push((n, e.byte_count));
+        left -= n;
+    }
+    if left > 0 {
+        return Err(Error::bad_input(
+            path,
+            format!(
+                "header announces {} points but the LAZ chunk table holds only {}",
+                file.points,
+                file.points - left
+            ),
+        ));
+    }
+    Ok(Some(LazChunks {
+        vlr,
+        start: start + 8,
+        chunks,
+    }))
+}
+
+/// [`read_file_chunks`] for LAZ: one chunk per emitted buffer, decoded on the rayon pool with
+/// a window of chunks in flight, emitted in file order. Unlike asking the `las` reader for
+/// many chunks at a time, the cores never wait for the slowest chunk of a batch or for this
+/// thread: it only reads compressed bytes and hands decoded chunks on.
+fn read_laz_chunks(
+    file: &InputFile,
+    layout: &RecordLayout,
+    chunk_points: usize,
+    laz: &LazChunks,
+    mut spare: impl FnMut() -> Option<PointData>,
+    mut emit: impl FnMut(u64, PointData) -> Result<()>,
+) -> Result<u64> {
+    use std::collections::VecDeque;
+    type Decoded = (std::result::Result<PointData, String>, Vec<u8>);
+    let path = &file.path;
+    let header = &file.header;
+    let same = base_format(*header.point_format()) == layout.format
+        && header.transforms() == &layout.transforms;
+    let threads = rayon::current_num_threads().max(1);
+    let nominal = laz.chunks.first().map_or(1, |c| c.0.max(1)) as usize;
+    // Enough chunks in flight to keep every core busy while the oldest is emitted; more
+    // when the plan's chunk size allows (memory: window × one chunk, decoded + compressed).
+    let window = (2 * chunk_points / nominal).clamp(threads + 1, 2 * threads + 2);
+    let mut f =
+        BufReader::with_capacity(1 << 20, File::open(path).map_err(|e| Error::io(path, e))?);
+    f.seek(SeekFrom::Start(laz.start))
+        .map_err(|e| Error::io(path, e))?;
+    let fresh = || PointDataBuilder::new().for_header(header).build();
+    let mut pending: VecDeque<(u64, u64, crossbeam_channel::Receiver<Decoded>)> = VecDeque::new();
+    let mut byte_bufs: Vec<Vec<u8>> = Vec::new();
+    let mut first = 0u64;
+    let mut emitted = 0u64;
+    let mut next = |pending: &mut VecDeque<(u64, u64, crossbeam_channel::Receiver<Decoded>)>,
+                    byte_bufs: &mut Vec<Vec<u8>>|
+     -> Result<u64> {
+        let Some((at, n, rx)) = pending.pop_front() else {
+            return Ok(0);
+        };
+        let (res, bytes) = rx
+            .recv()
+            .map_err(|_| Error::Internal("LAZ decoder task vanished".into()))?;
+        byte_bufs.push(bytes);
+        let data = res.map_err(|e| {
+            Error::bad_input(
+                path,
+                format!(
+                    "header announces {} points, but reading points {at}..{} failed (truncated or corrupt data?): {e}",
+                    file.points,
+                    at + n
+                ),
+            )
+        })?;
+        if same {
+            emit(at, data)?;
+        } else {
+            let mut converted = Vec::with_capacity(n as usize * layout.record_len);
+            convert_chunk(&data, layout, &mut converted)
+                .map_err(|e| Error::bad_input(path, format!("point {at}+: {e}")))?;
+            let out = PointDataBuilder::new()
+                .with_format(layout.format)
+                .with_transforms(layout.transforms)
+                .build_from_bytes(converted)
+                .map_err(|e| Error::las(path, e))?;
+            emit(at, out)?;
+        }
+        Ok(n)
+    };
+    for &(n, byte_count) in &laz.chunks {
+        while pending.len() >= window {
+            emitted += next(&mut pending, &mut byte_bufs)?;
+        }
+        let mut bytes = byte_bufs.pop().unwrap_or_default();
+        bytes.resize(byte_count as usize, 0);
+        f.read_exact(&mut bytes).map_err(|e| {
+            Error::bad_input(
+                path,
+                format!(
+                    "truncated LAZ: cannot read the chunk of points {first}..{} ({e})",
+                    first + n
+                ),
+            )
+        })?;
+        let mut data = match spare() {
+            Some(d) if d.format() == header.point_format() && same => d,
+            _ => fresh(),
+        };
+        let vlr = laz.vlr.clone();
+        let (tx, rx) = crossbeam_channel::bounded::<Decoded>(1);
+        rayon::spawn(move || {
+            let entry = laz::laszip::ChunkTableEntry {
+                point_count: n,
+                byte_count,
+            };
+            let out = data.resize_for(n as usize);
+            let res = laz::par_decompress(&bytes, out, &vlr, std::slice::from_ref(&entry))
+                .map(|_| data)
+                .map_err(|e| e.to_string());
+            let _ = tx.send((res, bytes));
+        });
+        pending.push_back((first, n, rx));
+        first += n;
+    }
+    while !pending.is_empty() {
+        emitted += next(&mut pending, &mut byte_bufs)?;
+    }
+    Ok(emitted)
 }
 
 /// Re-encodes records of another format/transform into `layout`, filling attributes the

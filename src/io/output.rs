@@ -193,17 +193,23 @@ impl TileWriter {
         self.id_type
     }
 
-    /// `records` (run layout) turned into output records carrying `ids(i)` as segment id.
-    fn with_ids(&self, mut records: Vec<u8>, ids: impl Fn(usize) -> u64) -> Vec<u8> {
+    /// `records` (run layout) as output records carrying `ids(i)` as segment id: the same
+    /// bytes (updated in place) unless the id is appended to each record.
+    fn with_ids<'a>(
+        &self,
+        records: &'a mut [u8],
+        ids: impl Fn(usize) -> u64,
+    ) -> std::borrow::Cow<'a, [u8]> {
+        use std::borrow::Cow;
         let w = self.id_type.bytes();
         let put = |dst: &mut [u8], v: u64| dst.copy_from_slice(&v.to_le_bytes()[..w]);
         match self.segment_field {
-            SegmentField::None => records,
+            SegmentField::None => Cow::Borrowed(records),
             SegmentField::InPlace(o) => {
                 for (i, rec) in records.chunks_exact_mut(self.layout.record_len).enumerate() {
                     put(&mut rec[o..o + w], ids(i));
                 }
-                records
+                Cow::Borrowed(records)
             }
             SegmentField::Append => {
                 let n = records.len() / self.layout.record_len;
@@ -212,7 +218,7 @@ impl TileWriter {
                     out.extend_from_slice(rec);
                     out.extend_from_slice(&ids(i).to_le_bytes()[..w]);
                 }
-                out
+                Cow::Owned(out)
             }
         }
     }
@@ -230,7 +236,7 @@ impl TileWriter {
         &self,
         dir: &Path,
         name: &str,
-        records: Vec<u8>,
+        records: &mut [u8],
         segments: Option<TileSegments<'_>>,
     ) -> Result<PendingTile> {
         let path = dir.join(format!("{name}.{}", self.extension));
@@ -244,7 +250,7 @@ impl TileWriter {
         let records = self.with_ids(records, ids);
         let tmp = tmp_path(&path);
         pending.files.push((tmp.clone(), path));
-        if let Err(e) = self.write_to(&tmp, records) {
+        if let Err(e) = self.write_to(&tmp, &records) {
             pending.abandon();
             return Err(e);
         }
@@ -269,7 +275,7 @@ impl TileWriter {
         &self,
         spill_dir: &Path,
         name: &str,
-        records: Vec<u8>,
+        records: &mut [u8],
         segments: TileSegments<'_>,
     ) -> Result<DeferredTile> {
         let n = records.len() / self.layout.record_len;
@@ -417,14 +423,20 @@ impl TileWriter {
 
     // No fsync: rename after a complete write already guarantees readers never see a partial
     // tile if the process dies; syncing every tile would cost more than the compression.
-    fn write_to(&self, tmp: &Path, records: Vec<u8>) -> Result<()> {
+    //
+    // Written in blocks through one reused slab so the caller keeps (and reuses) its buffer.
+    fn write_to(&self, tmp: &Path, records: &[u8]) -> Result<()> {
+        const BLOCK: usize = 64 * 1024;
+        let rl = self.out_layout.record_len;
         let mut writer = self.open_writer(tmp)?;
-        let data = PointDataBuilder::new()
+        let mut slab = PointDataBuilder::new()
             .with_format(self.out_layout.format)
             .with_transforms(self.out_layout.transforms)
-            .build_from_bytes(records)
-            .map_err(|e| Error::las(tmp, e))?;
-        writer.write_points(&data).map_err(|e| Error::las(tmp, e))?;
+            .build();
+        for block in records.chunks(BLOCK * rl) {
+            slab.resize_for(block.len() / rl).copy_from_slice(block);
+            writer.write_points(&slab).map_err(|e| Error::las(tmp, e))?;
+        }
         Self::close_writer(writer, tmp)
     }
 }

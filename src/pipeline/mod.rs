@@ -23,7 +23,9 @@ use crate::io::output::{segment_table_tsv, SegmentIdType, TileSegments};
 use crate::io::{scan_inputs, write_atomic, InputSet, TileWriter};
 use crate::report::{peak_rss_mb, Summary};
 use crate::stitch::BorderSummary;
-use crate::tiling::{load_tile, schedule, split_job, FarThin, Grid, SplitParams, TileJob, Tiler};
+use crate::tiling::{
+    load_tile, schedule, split_job, FarThin, Grid, SplitParams, TileBuffers, TileJob, Tiler,
+};
 use budget::BudgetPlan;
 use collect::{Collector, Processed, TileMeta, TileOutput, ToWriter};
 use crossbeam_channel::{bounded, Receiver, Sender};
@@ -40,7 +42,7 @@ enum ReadMsg {
     Chunk {
         file: usize,
         first: u64,
-        records: Vec<u8>,
+        records: las::PointData,
     },
     FileDone(usize),
 }
@@ -292,7 +294,7 @@ fn run_inner(ctx: &RunCtx, progress: ProgressFn) -> Result<Summary> {
     let read_points = AtomicU64::new(0);
     let max_open = AtomicU64::new(0);
     let (chunk_tx, chunk_rx) = bounded::<ReadMsg>(plan.chunk_depth);
-    let (free_tx, free_rx) = bounded::<Vec<u8>>(plan.chunk_depth + 2);
+    let (free_tx, free_rx) = bounded::<las::PointData>(plan.chunk_depth + 2);
     let (job_tx, job_rx) = bounded::<TileJob>(plan.workers);
     let (res_tx, res_rx) = bounded::<ToWriter>(1);
     let layout = &set.layout;
@@ -316,19 +318,17 @@ fn run_inner(ctx: &RunCtx, progress: ProgressFn) -> Result<Summary> {
             let r = (|| -> Result<()> {
                 for &fi in &order {
                     let f = &set.files[fi];
-                    read_file_chunks(f, layout, plan.chunk_points, |first, recs| {
+                    let spare = || free_rx.try_recv().ok();
+                    read_file_chunks(f, layout, plan.chunk_points, spare, |first, records| {
                         if failure.failed() {
                             return Err(Error::Internal("cancelled".into()));
                         }
-                        let mut buf = free_rx.try_recv().unwrap_or_default();
-                        buf.clear();
-                        buf.extend_from_slice(recs);
-                        let n = (recs.len() / layout.record_len) as u64;
+                        let n = records.len() as u64;
                         chunk_tx
                             .send(ReadMsg::Chunk {
                                 file: fi,
                                 first,
-                                records: buf,
+                                records,
                             })
                             .map_err(|_| Error::Internal("cancelled".into()))?;
                         let done = read_points.fetch_add(n, Ordering::Relaxed) + n;
@@ -376,7 +376,7 @@ fn run_inner(ctx: &RunCtx, progress: ProgressFn) -> Result<Summary> {
                             first,
                             records,
                         } => {
-                            tiler.push_chunk(file, first, &records)?;
+                            tiler.push_chunk(file, first, records.raw_bytes())?;
                             let _ = free_tx.try_send(records);
                             max_open.fetch_max(tiler.open_tiles() as u64, Ordering::Relaxed);
                         }
@@ -422,11 +422,12 @@ fn run_inner(ctx: &RunCtx, progress: ProgressFn) -> Result<Summary> {
             let res_tx: Sender<ToWriter> = res_tx.clone();
             let failure = &failure;
             s.spawn(move || {
+                let mut spare = TileBuffers::default();
                 for job in job_rx.iter() {
                     if failure.failed() {
                         break;
                     }
-                    if let Err(e) = work(job, ctx, &res_tx) {
+                    if let Err(e) = work(job, ctx, &res_tx, &mut spare) {
                         failure.set(e);
                         break;
                     }
@@ -520,8 +521,14 @@ fn far_thin(cfg: &Config, stages: &[Box<dyn Stage>]) -> Option<FarThin> {
 }
 
 /// Processes one job: splits it while it is too big for the budget, then loads and runs the
-/// stages on each resulting tile and compresses its core points to a temporary file.
-fn work(job: TileJob, ctx: &RunCtx, res_tx: &Sender<ToWriter>) -> Result<()> {
+/// stages on each resulting tile and compresses its core points to a temporary file. The
+/// worker's tile buffers are reused from tile to tile (`spare`).
+fn work(
+    job: TileJob,
+    ctx: &RunCtx,
+    res_tx: &Sender<ToWriter>,
+    spare: &mut TileBuffers,
+) -> Result<()> {
     let RunCtx {
         set,
         out_dir,
@@ -542,6 +549,8 @@ fn work(job: TileJob, ctx: &RunCtx, res_tx: &Sender<ToWriter>) -> Result<()> {
     while let Some(job) = todo.pop() {
         if !plan.fits(job.n_core, job.n_buf, job.n_near) {
             was_split = true;
+            // The split's buffers take the place of a loaded tile: free the spare one.
+            *spare = TileBuffers::default();
             let params = SplitParams {
                 min_tile_size_m: cfg.tiling.min_tile_size_m,
                 buffer_bytes: plan.spill_bytes / plan.workers.max(1),
@@ -549,22 +558,18 @@ fn work(job: TileJob, ctx: &RunCtx, res_tx: &Sender<ToWriter>) -> Result<()> {
                 near_m: plan.near_m(),
                 far: far_thin,
             };
-            let (children, dropped) = split_job(&job, &set.layout, spill_dir, params)?;
+            let (name, n_core, n_buf, n_near) = (job.name, job.n_core, job.n_buf, job.n_near);
+            let (children, dropped) = split_job(job, &set.layout, spill_dir, params)?;
             tracing::debug!(
-                "tile {}: {} core + {} buffer points ({} near) do not fit; split into {} children ({} far buffer copies thinned)",
-                job.name,
-                job.n_core,
-                job.n_buf,
-                job.n_near,
+                "tile {name}: {n_core} core + {n_buf} buffer points ({n_near} near) do not fit; split into {} children ({dropped} far buffer copies thinned)",
                 children.len(),
-                dropped
             );
             thinned += dropped;
             // Reverse so children are processed in quadrant order.
             todo.extend(children.into_iter().rev());
             continue;
         }
-        let mut tile = load_tile(&job, &set.layout)?;
+        let mut tile = load_tile(job, &set.layout, std::mem::take(spare))?;
         let mut report = TileReport::default();
         for st in stages {
             let t = Instant::now();
@@ -601,11 +606,12 @@ fn work(job: TileJob, ctx: &RunCtx, res_tx: &Sender<ToWriter>) -> Result<()> {
         });
         let output = match (summary, seg) {
             (Some(summary), Some(seg)) => TileOutput::Deferred(
-                writer.defer(spill_dir, &name, records, seg)?,
+                writer.defer(spill_dir, &name, &mut records, seg)?,
                 Box::new(summary),
             ),
-            (_, seg) => TileOutput::Written(writer.prepare(out_dir, &name, records, seg)?),
+            (_, seg) => TileOutput::Written(writer.prepare(out_dir, &name, &mut records, seg)?),
         };
+        *spare = TileBuffers::reclaim(&mut tile, records);
         drop(tile);
         report
             .seconds

@@ -88,14 +88,15 @@ impl Stage for StatsStage {
             zmax = zmax.max(p[2]);
             zsum += p[2];
         }
-        let mut classes: BTreeMap<u8, u64> = BTreeMap::new();
+        let mut counts = [0u64; 256];
         for rec in tile
             .records
             .chunks_exact(layout.record_len)
             .take(tile.n_core)
         {
-            *classes.entry(layout.classification(rec)).or_default() += 1;
+            counts[layout.classification(rec) as usize] += 1;
         }
+        let classes: BTreeMap<u8, u64> = (0..=255u8).zip(counts).filter(|&(_, n)| n > 0).collect();
         let n = core.len().max(1) as f64;
         report.stats.insert(
             "stats".into(),

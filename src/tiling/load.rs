@@ -1,7 +1,7 @@
 //! Worker side of tiling: load a complete tile from its spill files, or split an over-dense
 //! tile into quadrants (quadtree, same buffer width) without loading it.
 
-use super::spill::{for_each_spilled, spill_path, Part, SpillSet};
+use super::spill::{Part, SpillSet};
 use super::TileJob;
 use crate::error::{Error, Result};
 use crate::ground::seeds::cell_representative;
@@ -12,22 +12,52 @@ use std::path::Path;
 /// Points read per block when streaming spill files.
 const BLOCK_POINTS: usize = 16 * 1024;
 
-/// Reads a tile's spill files into memory (core points first) and deletes them.
-pub fn load_tile(job: &TileJob, layout: &RecordLayout) -> Result<Tile> {
+/// Per-point buffers a worker carries from one tile to the next: allocating them afresh for
+/// every tile costs a page fault per 4 KiB touched, as much as reading the spill files.
+#[derive(Debug, Default)]
+pub struct TileBuffers {
+    records: Vec<u8>,
+    ids: Vec<u64>,
+    xyz: Vec<[f64; 3]>,
+}
+
+impl TileBuffers {
+    /// Takes a finished tile's buffers (`records` may have been moved out of the tile earlier
+    /// and is given separately).
+    pub fn reclaim(tile: &mut Tile, records: Vec<u8>) -> Self {
+        TileBuffers {
+            records,
+            ids: std::mem::take(&mut tile.ids),
+            xyz: std::mem::take(&mut tile.xyz),
+        }
+    }
+}
+
+/// Reads a tile's points into memory (core points first) in `spare`'s buffers, deleting its
+/// spill files and freeing its in-memory tails.
+pub fn load_tile(mut job: TileJob, layout: &RecordLayout, spare: TileBuffers) -> Result<Tile> {
     let n = (job.n_core + job.n_buf) as usize;
     let rl = layout.record_len;
-    let mut records = Vec::with_capacity(n * rl);
-    let mut ids = Vec::with_capacity(n);
-    let mut xyz = Vec::with_capacity(n);
-    for (path, count) in [(&job.core_path, job.n_core), (&job.buf_path, job.n_buf)] {
-        for_each_spilled(path, rl, count, BLOCK_POINTS, |id, rec| {
+    let TileBuffers {
+        mut records,
+        mut ids,
+        mut xyz,
+    } = spare;
+    records.clear();
+    ids.clear();
+    xyz.clear();
+    records.reserve_exact(n * rl);
+    ids.reserve_exact(n);
+    xyz.reserve_exact(n);
+    for part in [&job.core_part, &job.buf_part] {
+        part.for_each(rl, BLOCK_POINTS, |id, rec| {
             records.extend_from_slice(rec);
             ids.push(id);
             xyz.push(layout.xyz(rec));
             Ok(())
         })?;
     }
-    remove_spill(job);
+    remove_spill(&mut job);
     Ok(Tile {
         id: job.id,
         name: job.name,
@@ -42,9 +72,9 @@ pub fn load_tile(job: &TileJob, layout: &RecordLayout) -> Result<Tile> {
     })
 }
 
-fn remove_spill(job: &TileJob) {
-    let _ = std::fs::remove_file(&job.core_path);
-    let _ = std::fs::remove_file(&job.buf_path);
+fn remove_spill(job: &mut TileJob) {
+    job.core_part.release();
+    job.buf_part.release();
 }
 
 /// How [`split_job`] splits.
@@ -70,7 +100,7 @@ pub struct SplitParams {
 /// With `far` set, a child's far buffer cells keep only their representative point (see
 /// [`FarThin`]); the second value returned counts the buffer point copies dropped that way.
 pub fn split_job(
-    job: &TileJob,
+    mut job: TileJob,
     layout: &RecordLayout,
     spill_dir: &Path,
     params: SplitParams,
@@ -141,12 +171,9 @@ pub fn split_job(
         let inside = (cx0..=cx1).contains(&cx) && (cy0..=cy1).contains(&cy);
         (!inside).then_some((cx, cy))
     };
-    let parts = [
-        (&job.core_path, job.n_core, true),
-        (&job.buf_path, job.n_buf, false),
-    ];
-    for (path, count, parent_core) in parts {
-        for_each_spilled(path, rl, count, BLOCK_POINTS, |pid, rec| {
+    let parts = [(&job.core_part, true), (&job.buf_part, false)];
+    for (part, parent_core) in parts {
+        part.for_each(rl, BLOCK_POINTS, |pid, rec| {
             let [x, y, z] = layout.xyz(rec);
             // A parent core point belongs to exactly one child core, decided by the midlines
             // so that rounding can never drop or duplicate it.
@@ -174,8 +201,8 @@ pub fn split_job(
     // leaves of the CycloMedia tile.
     let undecided: Vec<_> = keepers.iter_mut().map(|k| k.undecided()).collect();
     if undecided.iter().any(|u| !u.is_empty()) {
-        for (path, count, parent_core) in parts {
-            for_each_spilled(path, rl, count, BLOCK_POINTS, |pid, rec| {
+        for (part, parent_core) in parts {
+            part.for_each(rl, BLOCK_POINTS, |pid, rec| {
                 let [x, y, z] = layout.xyz(rec);
                 let core_q =
                     parent_core.then_some((x >= xm) as usize | (((y >= ym) as usize) << 1));
@@ -190,7 +217,7 @@ pub fn split_job(
             })?;
         }
     }
-    remove_spill(job);
+    remove_spill(&mut job);
     let mut thinned = 0;
     for (q, keeper) in keepers.into_iter().enumerate() {
         let offered = keeper.offered;
@@ -200,10 +227,10 @@ pub fn split_job(
     let mut out = Vec::new();
     let mut total_core = 0;
     for (cid, rect) in quads {
-        let counts = set.finish(cid)?;
-        let (n_core, n_buf) = (counts.core, counts.buf);
+        let done = set.finish(cid)?;
+        let (n_core, n_buf) = (done.core.points(), done.buf.points());
         total_core += n_core;
-        let child = TileJob {
+        let mut child = TileJob {
             id: cid,
             name: TileName {
                 id: cid,
@@ -211,14 +238,14 @@ pub fn split_job(
             },
             core: rect,
             buffer_m: b,
-            core_path: spill_path(spill_dir, cid, Part::Core),
-            buf_path: spill_path(spill_dir, cid, Part::Buffer),
+            core_part: done.core,
+            buf_part: done.buf,
             n_core,
             n_buf,
-            n_near: counts.near,
+            n_near: done.near,
         };
         if n_core == 0 {
-            remove_spill(&child);
+            remove_spill(&mut child);
         } else {
             out.push(child);
         }
@@ -504,7 +531,7 @@ mod tests {
             set.push(slot, part, pid, &rec).unwrap();
             points.push((x, y, part));
         }
-        let counts = set.finish(id).unwrap();
+        let done = set.finish(id).unwrap();
         let job = TileJob {
             id,
             name: TileName {
@@ -513,10 +540,10 @@ mod tests {
             },
             core,
             buffer_m: 20.0,
-            core_path: spill_path(dir.path(), id, Part::Core),
-            buf_path: spill_path(dir.path(), id, Part::Buffer),
-            n_core: counts.core,
-            n_buf: counts.buf,
+            n_core: done.core.points(),
+            n_buf: done.buf.points(),
+            core_part: done.core,
+            buf_part: done.buf,
             n_near: 0,
         };
         let far = FarThin {
@@ -533,11 +560,12 @@ mod tests {
             near_m: 5.0,
             far: Some(far),
         };
-        let (children, thinned) = split_job(&job, &layout, dir.path(), params).unwrap();
+        let n_core = job.n_core;
+        let (children, thinned) = split_job(job, &layout, dir.path(), params).unwrap();
         assert_eq!(children.len(), 4);
         assert!(thinned > 0);
         let mut cores = 0;
-        for child in &children {
+        for child in children {
             let near = child.core.expanded(5.0);
             let outer = child.core.expanded(20.0);
             let expect_near = points
@@ -545,11 +573,12 @@ mod tests {
                 .filter(|&&(x, y, _)| near.contains(x, y) && !child.core.contains(x, y))
                 .count() as u64;
             assert_eq!(child.n_near, expect_near, "{}", child.name);
-            let tile = load_tile(child, &layout).unwrap();
+            let core = child.core;
+            let tile = load_tile(child, &layout, TileBuffers::default()).unwrap();
             cores += tile.n_core;
             assert!(tile.xyz[..tile.n_core]
                 .iter()
-                .all(|p| child.core.contains(p[0], p[1])));
+                .all(|p| core.contains(p[0], p[1])));
             let mut far_cells = HashSet::new();
             let mut in_near = 0;
             for p in &tile.xyz[tile.n_core..] {
@@ -571,6 +600,6 @@ mod tests {
             }
             assert_eq!(in_near, expect_near);
         }
-        assert_eq!(cores as u64, job.n_core);
+        assert_eq!(cores as u64, n_core);
     }
 }

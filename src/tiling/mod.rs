@@ -6,17 +6,18 @@ pub mod load;
 pub mod spill;
 
 pub use grid::Grid;
-pub use load::{load_tile, split_job, FarCells, FarThin, SplitParams, FAR_KEEP};
-pub use spill::{Part, SpillSet, TileMap};
+pub use load::{load_tile, split_job, FarCells, FarThin, SplitParams, TileBuffers, FAR_KEEP};
+pub use spill::{FinishedTile, Part, SpillPart, SpillSet, TileMap};
 
 use crate::error::Result;
 use crate::io::InputFile;
 use crate::model::{point_id, RecordLayout, Rect, TileId, TileName};
 use crate::stitch::CellRelease;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
-/// A complete tile waiting on disk for a worker.
-#[derive(Debug, Clone)]
+/// A complete tile waiting for a worker: its points are in spill files and, for tiles released
+/// while their buffers still held points, partly in memory.
+#[derive(Debug)]
 pub struct TileJob {
     /// Identity.
     pub id: TileId,
@@ -26,13 +27,13 @@ pub struct TileJob {
     pub core: Rect,
     /// Buffer width.
     pub buffer_m: f64,
-    /// Spill file of core points.
-    pub core_path: PathBuf,
-    /// Spill file of buffer points.
-    pub buf_path: PathBuf,
-    /// Core points in the spill file.
+    /// Core points.
+    pub core_part: SpillPart,
+    /// Buffer points.
+    pub buf_part: SpillPart,
+    /// Core points (in `core_part`).
     pub n_core: u64,
-    /// Buffer points in the spill file.
+    /// Buffer points (in `buf_part`).
     pub n_buf: u64,
     /// Of those, the points within `near_m` of the core (the stages' widest bounded context):
     /// what those stages hold (`BudgetPlan::fits`).
@@ -51,9 +52,10 @@ pub struct Tiler<'a> {
     grid: Grid,
     layout: &'a RecordLayout,
     files: &'a [InputFile],
+    /// Per input, where its points must lie ([`InputFile::accepted`]).
+    accepted: Vec<Rect>,
     file_done: Vec<bool>,
     spill: SpillSet,
-    spill_dir: PathBuf,
     open: TileMap<OpenTile>,
     /// The last core tile seen: consecutive points almost always share it.
     last: Option<(i64, i64, usize)>,
@@ -85,9 +87,9 @@ impl<'a> Tiler<'a> {
             grid,
             layout,
             files,
+            accepted: files.iter().map(InputFile::accepted).collect(),
             file_done: vec![false; files.len()],
-            spill: SpillSet::new(spill_dir, spill_bytes),
-            spill_dir: spill_dir.to_path_buf(),
+            spill: SpillSet::with_handoff(spill_dir, spill_bytes),
             open: TileMap::default(),
             last: None,
             releases: Vec::new(),
@@ -99,13 +101,20 @@ impl<'a> Tiler<'a> {
         self.open.len()
     }
 
-    /// Bins one chunk of records read from input `file` starting at point `first`.
+    /// Bins one chunk of records read from input `file` starting at point `first`. Fails on
+    /// the first point outside the file's accepted region (the completeness of tiles rests on
+    /// the header bounds).
     pub fn push_chunk(&mut self, file: usize, first: u64, records: &[u8]) -> Result<()> {
         let rl = self.layout.record_len;
         let grid = self.grid;
         let b = grid.buffer_m;
+        let accepted = self.accepted[file];
         for (i, rec) in records.chunks_exact(rl).enumerate() {
-            let [x, y, _] = self.layout.xyz(rec);
+            let p = self.layout.xyz(rec);
+            if !InputFile::accepts(&accepted, p) {
+                return Err(self.files[file].rejected(first + i as u64, p));
+            }
+            let [x, y, _] = p;
             let pid = point_id(file, first + i as u64);
             let (ix, iy) = grid.cell(x, y);
             let slot = match self.last {
@@ -163,8 +172,8 @@ impl<'a> Tiler<'a> {
         slot
     }
 
-    /// Marks input `file` as fully read and returns the tiles that became complete, in a
-    /// deterministic order.
+    /// Marks input `file` as fully read and returns the tiles that became complete, largest
+    /// first (a deterministic order).
     pub fn file_done(&mut self, file: usize) -> Result<Vec<TileJob>> {
         self.file_done[file] = true;
         let r = reach(&self.files[file], self.layout);
@@ -225,10 +234,10 @@ impl<'a> Tiler<'a> {
             .collect();
         for (id, open_neighbours) in ids.into_iter().zip(open_neighbours) {
             self.open.remove(&id);
-            let counts = self.spill.finish(id)?;
-            let (n_core, n_buf) = (counts.core, counts.buf);
+            let done = self.spill.finish(id)?;
+            let (n_core, n_buf) = (done.core.points(), done.buf.points());
             let core = self.grid.cell_rect(id.ix, id.iy);
-            let job = TileJob {
+            let mut job = TileJob {
                 id,
                 name: TileName {
                     id,
@@ -236,11 +245,11 @@ impl<'a> Tiler<'a> {
                 },
                 core,
                 buffer_m: self.grid.buffer_m,
-                core_path: spill::spill_path(&self.spill_dir, id, Part::Core),
-                buf_path: spill::spill_path(&self.spill_dir, id, Part::Buffer),
+                core_part: done.core,
+                buf_part: done.buf,
                 n_core,
                 n_buf,
-                n_near: counts.near,
+                n_near: done.near,
             };
             self.releases.push(CellRelease {
                 cell: (id.ix, id.iy),
@@ -250,11 +259,14 @@ impl<'a> Tiler<'a> {
             if n_core == 0 {
                 // Only buffer points fell here: nothing to write, the points are written by
                 // their own core tiles.
-                let _ = std::fs::remove_file(&job.buf_path);
+                job.buf_part.release();
                 continue;
             }
             jobs.push(job);
         }
+        // Largest first (ties in id order): with several workers, a big tile started last
+        // would leave the others idle at the end of the batch.
+        jobs.sort_by_key(|j| std::cmp::Reverse(j.n_core + j.n_buf));
         Ok(jobs)
     }
 }
