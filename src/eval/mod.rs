@@ -25,15 +25,21 @@ pub fn load_points(path: &Path, precision_m: f64) -> Result<LabelledPoints> {
     let mut out = LabelledPoints::default();
     for f in files {
         let mut r = las::Reader::from_path(&f).map_err(|e| Error::las(&f, e))?;
-        let data = r.read_all().map_err(|e| Error::las(&f, e))?;
-        for p in data.points() {
-            let p = p.map_err(|e| Error::las(&f, e))?;
-            out.keys.push([
-                (p.x / precision_m).round() as i64,
-                (p.y / precision_m).round() as i64,
-                (p.z / precision_m).round() as i64,
-            ]);
-            out.classes.push(u8::from(p.classification));
+        let mut pd = las::PointDataBuilder::new().for_header(r.header()).build();
+        while r
+            .fill_points(1 << 20, &mut pd)
+            .map_err(|e| Error::las(&f, e))?
+            > 0
+        {
+            for p in pd.points() {
+                let p = p.map_err(|e| Error::las(&f, e))?;
+                out.keys.push([
+                    (p.x / precision_m).round() as i64,
+                    (p.y / precision_m).round() as i64,
+                    (p.z / precision_m).round() as i64,
+                ]);
+                out.classes.push(u8::from(p.classification));
+            }
         }
     }
     Ok(out)
@@ -45,28 +51,41 @@ pub fn load_points(path: &Path, precision_m: f64) -> Result<LabelledPoints> {
 /// points are an error unless `allow_unmatched` (e.g. scoring the ISPRS samples inside a
 /// filtered site file): a result must not lose points.
 pub fn match_points(
-    reference: &LabelledPoints,
-    result: &LabelledPoints,
+    reference: &[[i64; 3]],
+    result: &[[i64; 3]],
     allow_unmatched: bool,
 ) -> Result<Vec<Option<usize>>> {
-    if reference.keys.len() == result.keys.len() && reference.keys == result.keys {
-        return Ok((0..reference.keys.len()).map(Some).collect());
+    if reference == result {
+        return Ok((0..reference.len()).map(Some).collect());
     }
-    let mut index: HashMap<[i64; 3], Vec<usize>> = HashMap::with_capacity(result.keys.len());
-    for (i, k) in result.keys.iter().enumerate().rev() {
-        index.entry(*k).or_default().push(i);
+    // First result index per key, later duplicates chained through `next` (in index order, so
+    // duplicates pair up in file order): a `Vec` per key cost ~3x the memory on large scenes.
+    const END: usize = usize::MAX;
+    let mut head: HashMap<[i64; 3], usize> = HashMap::with_capacity(result.len());
+    let mut next = vec![END; result.len()];
+    for (i, k) in result.iter().enumerate().rev() {
+        if let Some(h) = head.insert(*k, i) {
+            next[i] = h;
+        }
     }
-    let mut out = Vec::with_capacity(reference.keys.len());
+    let mut out = Vec::with_capacity(reference.len());
     let mut missing = 0usize;
-    for k in &reference.keys {
-        let m = index.get_mut(k).and_then(|v| v.pop());
+    for k in reference {
+        let m = match head.get_mut(k) {
+            Some(h) if *h != END => {
+                let i = *h;
+                *h = next[i];
+                Some(i)
+            }
+            _ => None,
+        };
         missing += m.is_none() as usize;
         out.push(m);
     }
     if missing > 0 && !allow_unmatched {
         return Err(Error::Config(format!(
             "{missing} of {} reference points have no result point at the same coordinates (precision too fine, or a different area?)",
-            reference.keys.len()
+            reference.len()
         )));
     }
     Ok(out)
@@ -85,7 +104,7 @@ pub fn eval_ground(
 ) -> Result<(ground::GroundScores, usize)> {
     let r = load_points(reference, precision_m)?;
     let s = load_points(result, precision_m)?;
-    let m = match_points(&r, &s, allow_unmatched)?;
+    let m = match_points(&r.keys, &s.keys, allow_unmatched)?;
     let (mut want, mut got) = (Vec::new(), Vec::new());
     for (k, i) in m.iter().enumerate() {
         if let Some(i) = i {
@@ -263,11 +282,7 @@ pub fn eval_segments(
     }
     let r = load_fields(reference, o.precision_m, &ref_fields)?;
     let s = load_fields(result, o.precision_m, &[o.res_field.as_str()])?;
-    let key = |keys: &Vec<[i64; 3]>| LabelledPoints {
-        keys: keys.clone(),
-        classes: Vec::new(),
-    };
-    let m = match_points(&key(&r.keys), &key(&s.keys), o.allow_unmatched)?;
+    let m = match_points(&r.keys, &s.keys, o.allow_unmatched)?;
     let mut ids: HashMap<(u32, u32), u32> = HashMap::new();
     let (mut want, mut got, mut xyz) = (Vec::new(), Vec::new(), Vec::new());
     for (k, i) in m.iter().enumerate() {
@@ -323,11 +338,7 @@ pub fn eval_labels(
 ) -> Result<labels::LabelEval> {
     let r = load_fields(reference, o.precision_m, &[o.ref_field.as_str()])?;
     let s = load_fields(result, o.precision_m, &[o.res_field.as_str()])?;
-    let key = |keys: &Vec<[i64; 3]>| LabelledPoints {
-        keys: keys.clone(),
-        classes: Vec::new(),
-    };
-    let m = match_points(&key(&r.keys), &key(&s.keys), o.allow_unmatched)?;
+    let m = match_points(&r.keys, &s.keys, o.allow_unmatched)?;
     let mut lut: [u8; 256] = std::array::from_fn(|i| i as u8);
     for (to, from) in &o.map {
         for &f in from {
@@ -352,4 +363,34 @@ pub fn eval_labels(
         got.push(lut[code(s.values[0][i], result)? as usize]);
     }
     Ok(labels::evaluate(&want, &got, &o.classes))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::match_points;
+
+    #[test]
+    fn match_points_pairs_duplicates_in_order_and_reports_missing() {
+        let a = [1, 2, 3];
+        let b = [4, 5, 6];
+        // Same order: matched by index.
+        assert_eq!(
+            match_points(&[a, b], &[a, b], false).unwrap(),
+            vec![Some(0), Some(1)]
+        );
+        // Shuffled with duplicates: a multiset, duplicates in file order.
+        let r = [a, b, a, a];
+        let s = [b, a, a, [7, 7, 7], a];
+        assert_eq!(
+            match_points(&r, &s, false).unwrap(),
+            vec![Some(1), Some(0), Some(2), Some(4)]
+        );
+        // One more `a` than the result holds: an error, or None when allowed.
+        let r = [a, a, a, a];
+        assert!(match_points(&r, &s, false).is_err());
+        assert_eq!(
+            match_points(&r, &s, true).unwrap(),
+            vec![Some(1), Some(2), Some(4), None]
+        );
+    }
 }
