@@ -20,11 +20,15 @@ d.write(f"{w}/in.las")
 print(f"input: {len(d.points)} points, point format {d.header.point_format.id}")
 PY
 tess=(); peer=()
+# `sync` before each timed run: each tool writes its outputs (laspy ~230 MB of LAS + LAZ per
+# run), and without it the kernel's writeback of one tool's files lands in the other's timing.
 for i in $(seq "$RUNS"); do
+  sync
   python3 "$PEERS/laspy_io_bench.py" "$W/in.las" "$W/lb" > "$W/lb.txt"
   p=$(awk '/read LAZ \(lazrs parallel\)/{r=$(NF-1)} /write LAZ \(lazrs parallel\)/{w=$(NF-1)} END{printf "%.3f", r+w}' "$W/lb.txt")
   peer+=("$p")
   rm -rf "$W/out"
+  sync
   s=$( { /usr/bin/time -f "%e %M" $BIN -q run "$W/lb/io_bench.laz" --out "$W/out" --set 'stages.run=["stats"]' >/dev/null; } 2>&1 | tail -1)
   tess+=("$(echo "$s" | cut -d' ' -f1)")
   echo "run $i: laspy read+write ${p} s, tessera ${s% *} s (max RSS $(( ${s#* } / 1024 )) MiB)"
