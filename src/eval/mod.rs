@@ -59,7 +59,8 @@ pub fn match_points(
         return Ok((0..reference.len()).map(Some).collect());
     }
     // First result index per key, later duplicates chained through `next` (in index order, so
-    // duplicates pair up in file order): a `Vec` per key cost ~3x the memory on large scenes.
+    // duplicates pair up in file order). A `Vec` per key, with copies of the keys, took the
+    // demo command to 1,031 MiB peak; this to 784 MiB.
     const END: usize = usize::MAX;
     let mut head: HashMap<[i64; 3], usize> = HashMap::with_capacity(result.len());
     let mut next = vec![END; result.len()];
