@@ -21,28 +21,12 @@ pub struct LabelledPoints {
 
 /// Reads every point of `path` (a file or a directory of tiles).
 pub fn load_points(path: &Path, precision_m: f64) -> Result<LabelledPoints> {
-    let files: Vec<PathBuf> = expand_paths(&[path.to_path_buf()])?;
-    let mut out = LabelledPoints::default();
-    for f in files {
-        let mut r = las::Reader::from_path(&f).map_err(|e| Error::las(&f, e))?;
-        let mut pd = las::PointDataBuilder::new().for_header(r.header()).build();
-        while r
-            .fill_points(1 << 20, &mut pd)
-            .map_err(|e| Error::las(&f, e))?
-            > 0
-        {
-            for p in pd.points() {
-                let p = p.map_err(|e| Error::las(&f, e))?;
-                out.keys.push([
-                    (p.x / precision_m).round() as i64,
-                    (p.y / precision_m).round() as i64,
-                    (p.z / precision_m).round() as i64,
-                ]);
-                out.classes.push(u8::from(p.classification));
-            }
-        }
-    }
-    Ok(out)
+    let f = load_fields(path, precision_m, &["classification"])?;
+    Ok(LabelledPoints {
+        keys: f.keys,
+        // Classification codes are read from a u8 field.
+        classes: f.values[0].iter().map(|&c| c as u8).collect(),
+    })
 }
 
 /// For each reference point, the index of its result point (`None` if it has none). Points are
