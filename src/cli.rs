@@ -34,6 +34,10 @@ pub struct RunOpts {
     /// Worker threads (pipeline.threads; 0 = all cores).
     #[arg(long)]
     pub threads: Option<usize>,
+    /// Replace an earlier run's outputs in the output directory (output.overwrite): exactly
+    /// the files that run recorded are removed first; other files are never touched.
+    #[arg(long)]
+    pub overwrite: bool,
 }
 
 impl RunOpts {
@@ -45,6 +49,9 @@ impl RunOpts {
         }
         if let Some(t) = self.threads {
             v.push(format!("pipeline.threads={t}"));
+        }
+        if self.overwrite {
+            v.push("output.overwrite=true".into());
         }
         v
     }

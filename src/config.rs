@@ -6,6 +6,9 @@ use crate::error::{Error, Result};
 use serde::Deserialize;
 use std::path::Path;
 
+/// Largest configuration file read (the defaults are ~10 KB).
+const MAX_CONFIG_BYTES: u64 = 1 << 20;
+
 /// The compiled-in default configuration.
 pub const DEFAULT_TOML: &str = include_str!("../config/default.toml");
 
@@ -45,6 +48,9 @@ pub struct OutputParams {
     pub format: String,
     /// "auto" or a point format number as a string or integer.
     pub point_format: toml::Value,
+    /// Replace an earlier run's outputs in the output directory (only the files its journal
+    /// lists); without it such a directory is refused.
+    pub overwrite: bool,
 }
 
 /// Stage selection.
@@ -96,7 +102,8 @@ impl Config {
         let mut root: toml::Value = toml::from_str(DEFAULT_TOML)
             .map_err(|e| Error::Config(format!("built-in defaults: {e}")))?;
         if let Some(path) = user_file {
-            let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+            // Bounded and regular files only: `--config /dev/zero` or a FIFO must fail, not hang.
+            let text = crate::io::files::read_text_bounded(path, MAX_CONFIG_BYTES)?;
             let user: toml::Value = toml::from_str(&text)
                 .map_err(|e| Error::Config(format!("{}: {e}", path.display())))?;
             merge(&mut root, user);
@@ -158,6 +165,13 @@ impl Config {
             return Err(Error::Config(
                 "tiling.min_tile_size_m must be positive".into(),
             ));
+        }
+        if self.pipeline.memory_budget_mb > crate::pipeline::budget::MAX_BUDGET_BYTES >> 20 {
+            return Err(Error::Config(format!(
+                "pipeline.memory_budget_mb must be at most {} (1 PiB), got {}",
+                crate::pipeline::budget::MAX_BUDGET_BYTES >> 20,
+                self.pipeline.memory_budget_mb
+            )));
         }
         if self.pipeline.memory_budget_mb < 64 {
             return Err(Error::Config(format!(

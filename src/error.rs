@@ -54,6 +54,21 @@ pub enum Error {
     /// Cross-tile stitching failed (an invariant of the message flow or a summary).
     #[error(transparent)]
     Stitch(#[from] crate::stitch::StitchError),
+    /// The output directory cannot be used as it is (held by another run, or holding files
+    /// tessera will not remove without being told to).
+    #[error("output directory {path}: {reason}")]
+    OutputDir {
+        /// The directory.
+        path: PathBuf,
+        /// Why, and what to do.
+        reason: String,
+        /// Whether the user's command decides it (e.g. `--overwrite` missing): exit code 2.
+        usage: bool,
+    },
+    /// The data cannot give a meaningful answer (e.g. an evaluation whose reference and
+    /// result are not the same points).
+    #[error("{0}")]
+    Data(String),
     /// An internal invariant was violated (a bug): the run stops rather than lose data.
     #[error("internal error: {0}")]
     Internal(String),
@@ -83,6 +98,9 @@ impl Error {
     }
     /// True for errors caused by the user's input or settings rather than by processing.
     pub fn is_usage(&self) -> bool {
-        matches!(self, Error::Config(_))
+        matches!(
+            self,
+            Error::Config(_) | Error::OutputDir { usage: true, .. }
+        )
     }
 }

@@ -224,6 +224,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 );
                 overrides.push(format!("label.samples={:?}", path.display().to_string()));
             }
+            // The demo's own tiles directory: an earlier demo's tiles are replaced (only the
+            // files its journal lists).
+            overrides.push("output.overwrite=true".into());
             let cfg = Config::load(opts.config.as_deref(), &overrides)?;
             let tiles = out.join("tiles");
             process(std::slice::from_ref(&scene_dir), &tiles, &cfg, cli.quiet)?;

@@ -182,18 +182,34 @@ pub struct ThinStats {
 }
 
 /// Thins a LAS/LAZ file into `output` (LAZ when its name ends in `.laz`), streaming the points in
-/// file order; every attribute, VLR and the point format are kept. The output is written to a
-/// temporary file and renamed, so a failure leaves no partial file.
+/// file order. Records are copied byte for byte (every attribute, extra bytes included), with
+/// the input's point format, VLRs and EVLRs; the header is written as LAS 1.4, which holds
+/// every point format and return numbers up to 15 (a LAS 1.2 header cannot count return 6).
+/// The output is written to a temporary file and renamed, so a failure leaves no partial file.
 pub fn thin_file(input: &Path, output: &Path, spacing_m: f64) -> crate::Result<ThinStats> {
     use crate::Error;
     let mut thinner = Thinner::new(spacing_m).map_err(|e| Error::Config(e.to_string()))?;
-    let mut reader = las::Reader::from_path(input).map_err(|e| Error::las(input, e))?;
+    let file = crate::io::input::scan_file(input, 0)?;
+    if let (Ok(a), Ok(b)) = (std::fs::canonicalize(input), std::fs::canonicalize(output)) {
+        if a == b {
+            return Err(Error::Config(format!(
+                "thin: the output {} is the input; write to another file",
+                output.display()
+            )));
+        }
+    }
+    let layout = crate::model::RecordLayout::new(
+        *file.header.point_format(),
+        *file.header.transforms(),
+    );
     let laz = output
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("laz"));
-    let mut b = las::Builder::from(reader.header().clone());
+    let mut b = las::Builder::from(file.header.clone());
+    b.version = las::Version::new(1, 4);
     b.point_format.is_compressed = laz;
     b.vlrs.retain(|v| !las::laz::is_laszip_vlr(v));
+    b.evlrs.retain(|v| !las::laz::is_laszip_vlr(v));
     b.padding.clear();
     b.vlr_padding.clear();
     b.point_padding.clear();
@@ -206,27 +222,29 @@ pub fn thin_file(input: &Path, output: &Path, spacing_m: f64) -> crate::Result<T
     header.clear();
     let tmp = crate::io::output::tmp_path(output);
     let res = (|| -> crate::Result<u64> {
-        let f = std::fs::File::create(&tmp).map_err(|e| Error::io(&tmp, e))?;
-        let mut w = las::Writer::new(std::io::BufWriter::with_capacity(1 << 20, f), header)
-            .map_err(|e| Error::las(output, e))?;
+        let mut w = crate::io::laswrite::LasFile::create(&tmp, header, Default::default())?;
+        let rl = layout.record_len;
         let mut kept = 0u64;
-        let mut pd = las::PointDataBuilder::new()
-            .for_header(reader.header())
+        let mut slab = las::PointDataBuilder::new()
+            .with_format(layout.format)
+            .with_transforms(layout.transforms)
             .build();
-        while reader
-            .fill_points(1 << 20, &mut pd)
-            .map_err(|e| Error::las(input, e))?
-            > 0
-        {
-            for p in pd.points() {
-                let p = p.map_err(|e| Error::las(input, e))?;
-                if thinner.offer([p.x, p.y, p.z]) {
-                    w.write_point(p).map_err(|e| Error::las(output, e))?;
-                    kept += 1;
+        let mut out: Vec<u8> = Vec::new();
+        crate::io::input::read_file_chunks(&file, &layout, 1 << 18, || None, |_, data| {
+            out.clear();
+            for rec in data.raw_bytes().chunks_exact(rl) {
+                if thinner.offer(layout.xyz(rec)) {
+                    out.extend_from_slice(rec);
                 }
             }
-        }
-        w.close().map_err(|e| Error::las(output, e))?;
+            if !out.is_empty() {
+                slab.resize_for(out.len() / rl).copy_from_slice(&out);
+                w.write_points(&slab)?;
+                kept += (out.len() / rl) as u64;
+            }
+            Ok(())
+        })?;
+        w.finish()?;
         Ok(kept)
     })();
     match res {

@@ -39,7 +39,7 @@ pub fn match_points(
     result: &[[i64; 3]],
     allow_unmatched: bool,
 ) -> Result<Vec<Option<usize>>> {
-    if reference == result {
+    if reference == result && !reference.is_empty() {
         return Ok((0..reference.len()).map(Some).collect());
     }
     // First result index per key, later duplicates chained through `next` (in index order, so
@@ -67,13 +67,42 @@ pub fn match_points(
         missing += m.is_none() as usize;
         out.push(m);
     }
+    let n = reference.len();
+    let matched = n - missing;
+    // Whatever `allow_unmatched` says: scoring a handful of coincidences (or nothing, which
+    // made kappa 100 %) would report a number about a different pair of files.
+    if n == 0 || (matched as f64) < MIN_MATCHED_FRACTION * n as f64 {
+        return Err(Error::Data(format!(
+            "only {matched} of {n} reference points have a result point at the same coordinates (at least {:.0} % must match): the reference and the result are not the same points (a different area or sample, or a different coordinate precision?)",
+            100.0 * MIN_MATCHED_FRACTION
+        )));
+    }
     if missing > 0 && !allow_unmatched {
-        return Err(Error::Config(format!(
-            "{missing} of {} reference points have no result point at the same coordinates (precision too fine, or a different area?)",
-            reference.len()
+        return Err(Error::Data(format!(
+            "{missing} of {n} reference points have no result point at the same coordinates (precision too fine, or a different area? --allow-unmatched scores the matched ones)"
         )));
     }
     Ok(out)
+}
+
+/// Fewest reference points that must find their result point, as a fraction, even with
+/// `allow_unmatched` (which is for a reference that is a subset or nearly the same set, e.g.
+/// an ISPRS sample inside its site file).
+pub const MIN_MATCHED_FRACTION: f64 = 0.5;
+
+/// Most points of a file set whose rounded coordinates may coincide with a *different* point
+/// before the match precision counts as coarser than the data.
+pub const MAX_MERGED_FRACTION: f64 = 0.01;
+
+/// Checks a matching precision: a finite, positive distance in metres.
+pub fn check_precision(precision_m: f64) -> Result<()> {
+    if precision_m.is_finite() && precision_m > 0.0 {
+        Ok(())
+    } else {
+        Err(Error::Config(format!(
+            "--match-precision-m {precision_m}: must be a finite distance > 0 m (e.g. 0.001)"
+        )))
+    }
 }
 
 /// Scores ground classification: `reference` and `result` are files or directories; a point is
@@ -199,23 +228,25 @@ pub(crate) fn field_value(path: &Path, p: &las::Point, src: FieldSource) -> Resu
 
 /// Reads every point of `path` (a file or a directory of tiles) with the attributes `fields`.
 pub fn load_fields(path: &Path, precision_m: f64, fields: &[&str]) -> Result<FieldPoints> {
+    check_precision(precision_m)?;
     let files: Vec<PathBuf> = expand_paths(&[path.to_path_buf()])?;
     let mut out = FieldPoints {
         values: vec![Vec::new(); fields.len()],
         ..Default::default()
     };
     for (fi, f) in files.iter().enumerate() {
-        let mut r = las::Reader::from_path(f).map_err(|e| Error::las(f, e))?;
+        // The same validated reader as the pipeline (regular files only, the right point
+        // count of LAS 1.4 headers).
+        let file = crate::io::input::scan_file(f, fi)?;
         let src: Vec<FieldSource> = fields
             .iter()
-            .map(|n| field_source(f, r.header(), n))
+            .map(|n| field_source(f, &file.header, n))
             .collect::<Result<_>>()?;
-        let mut pd = las::PointDataBuilder::new().for_header(r.header()).build();
-        while r
-            .fill_points(1 << 20, &mut pd)
-            .map_err(|e| Error::las(f, e))?
-            > 0
-        {
+        let layout = crate::model::RecordLayout::new(
+            *file.header.point_format(),
+            *file.header.transforms(),
+        );
+        crate::io::input::read_file_chunks(&file, &layout, 1 << 18, || None, |_, pd| {
             for p in pd.points() {
                 let p = p.map_err(|e| Error::las(f, e))?;
                 out.keys.push([
@@ -229,9 +260,36 @@ pub fn load_fields(path: &Path, precision_m: f64, fields: &[&str]) -> Result<Fie
                     col.push(field_value(f, &p, *s)?);
                 }
             }
+            Ok(())
+        })?;
+    }
+    check_resolution(path, precision_m, &out.keys, &out.xyz)?;
+    Ok(out)
+}
+
+/// Fails when the precision merges distinct points: more than [`MAX_MERGED_FRACTION`] of the
+/// points round to the same key as a point with other coordinates. Then matching by key would
+/// pair different points (a precision of 1e9 m made every point match every other).
+fn check_resolution(path: &Path, precision_m: f64, keys: &[[i64; 3]], xyz: &[[f64; 3]]) -> Result<()> {
+    let mut order: Vec<u32> = (0..keys.len() as u32).collect();
+    order.sort_unstable_by_key(|&i| keys[i as usize]);
+    let mut merged = 0usize;
+    for run in order.chunk_by(|&a, &b| keys[a as usize] == keys[b as usize]) {
+        if run.len() > 1 {
+            let first = xyz[run[0] as usize];
+            if run.iter().any(|&i| xyz[i as usize] != first) {
+                merged += run.len();
+            }
         }
     }
-    Ok(out)
+    if merged as f64 > MAX_MERGED_FRACTION * keys.len() as f64 {
+        return Err(Error::Data(format!(
+            "{}: at a match precision of {precision_m} m, {merged} of {} points round to the same coordinates as a different point; the precision is coarser than the point spacing, so matching would pair different points (use a finer --match-precision-m)",
+            path.display(),
+            keys.len()
+        )));
+    }
+    Ok(())
 }
 
 /// Options of [`eval_segments`].

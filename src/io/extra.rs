@@ -74,8 +74,70 @@ pub fn fields(vlr_data: &[u8]) -> Vec<ExtraField> {
         .collect()
 }
 
+/// Checks an extra-bytes VLR against the records it describes (`extra_bytes` per record)
+/// before its bytes are carried into outputs: whole descriptors, known data types (0 with a
+/// size, 1–10, and the deprecated 2- and 3-element arrays 11–30), non-empty unique names, and
+/// descriptors that fit the record. Descriptors covering fewer bytes than the record are
+/// allowed (the rest is undocumented, which readers keep as raw bytes); covering more is not.
+/// Measured with laspy 2.7: unknown types, a zero size, duplicate names and oversized
+/// descriptors make its reader raise, empty names make the field unreadable.
+pub fn validate(vlr_data: &[u8], extra_bytes: u16) -> Result<Vec<ExtraField>, String> {
+    if vlr_data.len() % DESCRIPTOR_LEN != 0 {
+        return Err(format!(
+            "the extra-bytes VLR is {} bytes, not a whole number of {DESCRIPTOR_LEN}-byte descriptors",
+            vlr_data.len()
+        ));
+    }
+    let f = fields(vlr_data);
+    let mut seen = std::collections::HashSet::new();
+    for (i, (d, x)) in vlr_data.chunks_exact(DESCRIPTOR_LEN).zip(&f).enumerate() {
+        let what = format!("extra-bytes descriptor {i} (\"{}\")", x.name);
+        if d[2] > 30 {
+            return Err(format!("{what}: unknown data type {}", d[2]));
+        }
+        if x.size == 0 {
+            return Err(format!("{what}: data type 0 with a size of 0 bytes"));
+        }
+        if x.name.is_empty() {
+            return Err(format!("{what}: empty name"));
+        }
+        if !seen.insert(x.name.as_str()) {
+            return Err(format!("{what}: the name appears twice"));
+        }
+    }
+    let total: usize = f.iter().map(|x| x.size).sum();
+    if total > usize::from(extra_bytes) {
+        return Err(format!(
+            "the extra-bytes descriptors cover {total} bytes but the point records have {extra_bytes} extra bytes"
+        ));
+    }
+    Ok(f)
+}
+
 #[cfg(test)]
 mod tests {
+
+    #[test]
+    fn validate_rejects_what_readers_cannot_read() {
+        let mut ok = descriptor(3, "a", "");
+        ok.extend(descriptor(10, "b", ""));
+        assert_eq!(validate(&ok, 10).unwrap().len(), 2);
+        assert!(validate(&ok, 12).is_ok(), "undocumented trailing bytes are allowed");
+        assert!(validate(&ok, 9).unwrap_err().contains("cover 10 bytes"));
+        assert!(validate(&ok[..300], 10).unwrap_err().contains("whole number"));
+        let mut t = ok.clone();
+        t[2] = 31;
+        assert!(validate(&t, 10).unwrap_err().contains("unknown data type 31"));
+        t[2] = 0;
+        assert!(validate(&t, 10).unwrap_err().contains("size of 0"));
+        let mut dup = descriptor(3, "a", "");
+        dup.extend(descriptor(10, "a", ""));
+        assert!(validate(&dup, 10).unwrap_err().contains("twice"));
+        let empty = descriptor(3, "", "");
+        assert!(validate(&empty, 2).unwrap_err().contains("empty name"));
+        let arr = descriptor(13, "pair", "");
+        assert_eq!(validate(&arr, 4).unwrap()[0].size, 4);
+    }
     use super::*;
 
     #[test]

@@ -50,28 +50,90 @@ fn is_point_file(p: &Path) -> bool {
 
 /// Expands directories (recursively, `*.las`/`*.laz`/`*.mcap`) and sorts the list.
 pub fn expand_paths(inputs: &[PathBuf]) -> Result<Vec<PathBuf>> {
-    let mut out = Vec::new();
+    expand_paths_excluding(inputs, &[])
+}
+
+/// [`expand_paths`], never entering `exclude` (e.g. the run's output directory) or anything
+/// under it. While walking directories it also skips tessera's work directories and other
+/// tessera output directories (a re-run would read its own earlier tiles); name one
+/// explicitly to read it. Every file must be a regular file (checked before it is opened).
+/// The same file reached twice (two spellings, a symlink) is read once.
+pub fn expand_paths_excluding(inputs: &[PathBuf], exclude: &[PathBuf]) -> Result<Vec<PathBuf>> {
+    use crate::io::workspace::{is_output_dir, is_work_dir};
+    let exclude: Vec<PathBuf> = exclude
+        .iter()
+        .filter_map(|p| std::fs::canonicalize(p).ok())
+        .collect();
+    let excluded = |canon: &Path| exclude.iter().any(|x| canon.starts_with(x));
+    let mut found: Vec<(PathBuf, PathBuf)> = Vec::new();
+    let mut skipped_excluded = 0usize;
     for p in inputs {
-        if p.is_dir() {
-            let mut stack = vec![p.clone()];
-            while let Some(dir) = stack.pop() {
-                let rd = std::fs::read_dir(&dir).map_err(|e| Error::io(&dir, e))?;
-                for entry in rd {
-                    let entry = entry.map_err(|e| Error::io(&dir, e))?;
-                    let path = entry.path();
-                    if path.is_dir() {
-                        stack.push(path);
-                    } else if is_point_file(&path) {
-                        out.push(path);
+        let canon = std::fs::canonicalize(p).map_err(|e| Error::io(p, e))?;
+        if excluded(&canon) {
+            return Err(Error::Config(format!(
+                "input {} lies inside the output directory; tessera never reads its own outputs as input",
+                p.display()
+            )));
+        }
+        if !canon.is_dir() {
+            crate::io::files::require_regular(p)?;
+            found.push((canon, p.clone()));
+            continue;
+        }
+        let mut stack = vec![p.clone()];
+        while let Some(dir) = stack.pop() {
+            let rd = std::fs::read_dir(&dir).map_err(|e| Error::io(&dir, e))?;
+            for entry in rd {
+                let entry = entry.map_err(|e| Error::io(&dir, e))?;
+                let path = entry.path();
+                let canon = match std::fs::canonicalize(&path) {
+                    Ok(c) => c,
+                    // A dangling symlink is not an input.
+                    Err(_) => continue,
+                };
+                if excluded(&canon) {
+                    skipped_excluded += 1;
+                    continue;
+                }
+                if canon.is_dir() {
+                    if is_work_dir(&path) {
+                        continue;
                     }
+                    if is_output_dir(&path) {
+                        tracing::warn!(
+                            "skipping {}: it holds the outputs of a tessera run (name it as an input to read it)",
+                            path.display()
+                        );
+                        continue;
+                    }
+                    stack.push(path);
+                } else if is_point_file(&path) {
+                    crate::io::files::require_regular(&path)?;
+                    found.push((canon, path));
                 }
             }
-        } else {
-            out.push(p.clone());
         }
     }
-    out.sort();
-    out.dedup();
+    if skipped_excluded > 0 {
+        tracing::info!("{skipped_excluded} entries inside the output directory were not read as input");
+    }
+    found.sort_by(|a, b| a.1.cmp(&b.1));
+    let mut seen: std::collections::HashMap<PathBuf, PathBuf> = std::collections::HashMap::new();
+    let mut out = Vec::new();
+    for (canon, path) in found {
+        match seen.get(&canon) {
+            Some(first) if first != &path => tracing::warn!(
+                "{} and {} are the same file; reading it once",
+                first.display(),
+                path.display()
+            ),
+            Some(_) => {}
+            None => {
+                seen.insert(canon, path.clone());
+                out.push(path);
+            }
+        }
+    }
     if out.is_empty() {
         return Err(Error::Config("no LAS/LAZ/MCAP input files given".into()));
     }
@@ -81,12 +143,12 @@ pub fn expand_paths(inputs: &[PathBuf]) -> Result<Vec<PathBuf>> {
 /// Checks the bytes of a file before handing it to the LAS parser, so the common ways a file
 /// is not point data get a precise message.
 fn sniff(path: &Path) -> Result<u64> {
-    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
-    if meta.len() == 0 {
+    let len = crate::io::files::require_regular(path)?;
+    if len == 0 {
         return Err(Error::bad_input(path, "empty file (0 bytes)"));
     }
     let mut head = [0u8; 64];
-    let mut f = File::open(path).map_err(|e| Error::io(path, e))?;
+    let mut f = crate::io::files::open_regular(path)?;
     let n = f.read(&mut head).map_err(|e| Error::io(path, e))?;
     if head[..n].starts_with(b"version https://git-lfs") {
         return Err(Error::bad_input(
@@ -122,15 +184,27 @@ fn sniff(path: &Path) -> Result<u64> {
             format!("truncated header: file is only {n} bytes"),
         ));
     }
-    Ok(meta.len())
+    Ok(len)
 }
 
-/// Checks that the point data the header announces is physically present.
-fn check_point_data(path: &Path, header: &las::Header, file_len: u64) -> Result<()> {
-    let mut f = BufReader::new(File::open(path).map_err(|e| Error::io(path, e))?);
-    let raw = las::raw::Header::read_from(&mut f).map_err(|e| Error::las(path, e))?;
+/// How many point records the data of a file physically holds, as far as it can be told
+/// without decoding.
+struct Present {
+    /// Bounds a count must respect.
+    lo: u64,
+    hi: u64,
+    /// The count the data most likely holds (records up to the EVLRs or the file's end; the
+    /// chunk table's sum), when one can be named.
+    likely: Option<u64>,
+}
+
+fn records_present(
+    path: &Path,
+    header: &las::Header,
+    raw: &las::raw::Header,
+    file_len: u64,
+) -> Result<Present> {
     let start = raw.offset_to_point_data as u64;
-    let count = header.number_of_points();
     if start > file_len {
         return Err(Error::bad_input(
             path,
@@ -138,18 +212,29 @@ fn check_point_data(path: &Path, header: &las::Header, file_len: u64) -> Result<
         ));
     }
     if !header.point_format().is_compressed {
-        let need = start + count * raw.point_data_record_length as u64;
-        if need > file_len {
-            let have = (file_len - start) / raw.point_data_record_length.max(1) as u64;
-            return Err(Error::bad_input(
-                path,
-                format!("header announces {count} points but the file holds only {have} complete records (truncated or wrong point count)"),
-            ));
-        }
-        return Ok(());
+        let rl = u64::from(raw.point_data_record_length.max(1));
+        // LAS 1.4 says where the point data ends when EVLRs follow it; otherwise the file's
+        // end bounds it (writers may pad).
+        let evlr_start = raw
+            .evlr
+            .map(|e| e.start_of_first_evlr)
+            .filter(|&s| s >= start && s <= file_len);
+        return Ok(match evlr_start {
+            Some(end) => Present {
+                lo: (end - start) / rl,
+                hi: (end - start) / rl,
+                likely: Some((end - start) / rl),
+            },
+            None => Present {
+                lo: 0,
+                hi: (file_len - start) / rl,
+                likely: Some((file_len - start) / rl),
+            },
+        });
     }
     // LAZ: the chunk table at the end tells how many points and bytes really exist.
     let vlr = header.laz_vlr().map_err(|e| Error::las(path, e))?;
+    let mut f = BufReader::new(crate::io::files::open_regular(path)?);
     f.seek(SeekFrom::Start(start))
         .map_err(|e| Error::io(path, e))?;
     let table = laz::laszip::ChunkTable::read_from(&mut f, &vlr).map_err(|e| {
@@ -169,20 +254,93 @@ fn check_point_data(path: &Path, header: &las::Header, file_len: u64) -> Result<
         ));
     }
     let n_chunks = table.len() as u64;
-    let (lo, hi) = if vlr.uses_variable_size_chunks() {
+    Ok(if vlr.uses_variable_size_chunks() {
         let s: u64 = table.as_ref().iter().map(|c| c.point_count).sum();
-        (s, s)
+        Present {
+            lo: s,
+            hi: s,
+            likely: Some(s),
+        }
     } else {
-        let cs = vlr.chunk_size() as u64;
-        (n_chunks.saturating_sub(1) * cs + 1, n_chunks * cs)
+        let cs = u64::from(vlr.chunk_size());
+        Present {
+            lo: n_chunks.saturating_sub(1) * cs + 1,
+            hi: n_chunks * cs,
+            likely: None,
+        }
+    })
+}
+
+/// The number of points of a file: the header's count, checked against the data.
+///
+/// LAS 1.4 has two counts: the legacy 32-bit one (0 for formats 6–10, or when the count does
+/// not fit) and the 64-bit one, which the specification makes authoritative and laspy reads
+/// (measured: laspy 2.7 reads the 64-bit count and ignores the legacy one). The `las` crate
+/// prefers the legacy count, which silently lost 99 % of a file whose legacy count said 10.
+/// When the two disagree, the one the data supports is used, the 64-bit one first, with a
+/// warning naming both; when neither fits the data it is an error.
+fn point_count(path: &Path, raw: &las::raw::Header, present: Present) -> Result<u64> {
+    let legacy = u64::from(raw.number_of_point_records);
+    let Present { lo, hi, likely } = present;
+    // One count: it must not exceed the data, and a non-zero count must reach the data's
+    // lower bound. Two disagreeing counts: the data must hold exactly what a count says.
+    let plausible = |n: u64| n <= hi && (n == 0 || n >= lo);
+    let fits = |n: u64| n <= hi && n >= lo;
+    let describe = || {
+        if lo == hi {
+            format!("the point data holds {lo}")
+        } else {
+            format!("the point data holds {lo}..={hi}")
+        }
     };
-    if count > hi || (count > 0 && count < lo) {
+    let Some(large) = raw.large_file else {
+        if !plausible(legacy) {
+            return Err(Error::bad_input(
+                path,
+                format!(
+                    "header announces {legacy} points but {} (truncated or wrong point count)",
+                    describe()
+                ),
+            ));
+        }
+        return Ok(legacy);
+    };
+    let n64 = large.number_of_point_records;
+    if legacy == 0 || legacy == n64 {
+        if !plausible(n64) {
+            return Err(Error::bad_input(
+                path,
+                format!(
+                    "header announces {n64} points but {} (truncated or wrong point count)",
+                    describe()
+                ),
+            ));
+        }
+        return Ok(n64);
+    }
+    let chosen = if likely == Some(n64) {
+        n64
+    } else if likely == Some(legacy) {
+        legacy
+    } else if likely.is_none() && fits(n64) {
+        n64
+    } else if likely.is_none() && fits(legacy) {
+        legacy
+    } else {
         return Err(Error::bad_input(
             path,
-            format!("header announces {count} points but the LAZ chunk table holds {lo}..={hi}"),
+            format!(
+                "the header's point counts disagree (64-bit {n64}, legacy 32-bit {legacy}) and neither matches the data: {}",
+                describe()
+            ),
         ));
-    }
-    Ok(())
+    };
+    tracing::warn!(
+        "{}: the header's point counts disagree (64-bit {n64}, legacy 32-bit {legacy}); reading {chosen} points, the count the data holds{}",
+        path.display(),
+        if chosen == n64 { " and the LAS 1.4 specification makes authoritative" } else { "" }
+    );
+    Ok(chosen)
 }
 
 /// Opens and validates one input.
@@ -190,6 +348,7 @@ pub fn scan_file(path: &Path, index: usize) -> Result<InputFile> {
     let file_len = sniff(path)?;
     let reader = Reader::from_path(path).map_err(|e| Error::las(path, e))?;
     let header = reader.header().clone();
+    drop(reader);
     let t = header.transforms();
     for (axis, tr) in [("x", t.x), ("y", t.y), ("z", t.z)] {
         if !(tr.scale.is_finite() && tr.scale != 0.0 && tr.offset.is_finite()) {
@@ -202,9 +361,15 @@ pub fn scan_file(path: &Path, index: usize) -> Result<InputFile> {
             ));
         }
     }
+    let raw = {
+        let mut f = BufReader::new(crate::io::files::open_regular(path)?);
+        las::raw::Header::read_from(&mut f).map_err(|e| Error::las(path, e))?
+    };
+    let present = records_present(path, &header, &raw, file_len)?;
+    let points = point_count(path, &raw, present)?;
     let b = header.bounds();
     let vals = [b.min.x, b.min.y, b.min.z, b.max.x, b.max.y, b.max.z];
-    if header.number_of_points() > 0
+    if points > 0
         && (vals.iter().any(|v| !v.is_finite()) || b.min.x > b.max.x || b.min.y > b.max.y)
     {
         return Err(Error::bad_input(
@@ -212,11 +377,16 @@ pub fn scan_file(path: &Path, index: usize) -> Result<InputFile> {
             format!("invalid bounds in header: {vals:?}"),
         ));
     }
-    check_point_data(path, &header, file_len)?;
+    for v in header.all_vlrs() {
+        if v.user_id == crate::io::extra::USER_ID && v.record_id == crate::io::extra::RECORD_ID {
+            crate::io::extra::validate(&v.data, header.point_format().extra_bytes)
+                .map_err(|e| Error::bad_input(path, e))?;
+        }
+    }
     Ok(InputFile {
         path: path.to_path_buf(),
         index,
-        points: header.number_of_points(),
+        points,
         bounds: Rect {
             x0: b.min.x,
             y0: b.min.y,
@@ -240,6 +410,7 @@ pub fn scan_inputs(inputs: &[PathBuf], point_format: Option<u8>) -> Result<Input
         .enumerate()
         .map(|(i, p)| scan_file(p, i))
         .collect::<Result<_>>()?;
+    refuse_copies(&files)?;
     if files.len() as u64 >= (1 << 23) {
         return Err(Error::Config(
             "more than 8 million input files in one run".into(),
@@ -342,6 +513,55 @@ pub fn scan_inputs(inputs: &[PathBuf], point_format: Option<u8>) -> Result<Input
     })
 }
 
+/// Refuses two inputs that are copies of one file (same size, same header bytes, same first
+/// and last 64 KiB): their points would be counted twice. Different paths to the *same* file
+/// were already merged by [`expand_paths_excluding`].
+fn refuse_copies(files: &[InputFile]) -> Result<()> {
+    use std::hash::{Hash, Hasher};
+    // Keyed by a hash of the sample, not the sample, so 10,000 inputs cost kilobytes; a hash
+    // match is confirmed byte for byte.
+    let mut by_key: std::collections::HashMap<(u64, u64), &InputFile> = Default::default();
+    for f in files {
+        let len = std::fs::metadata(&f.path)
+            .map_err(|e| Error::io(&f.path, e))?
+            .len();
+        let sample = content_sample(&f.path, len)?;
+        let mut h = std::collections::hash_map::DefaultHasher::new();
+        sample.hash(&mut h);
+        if let Some(first) = by_key.insert((len, h.finish()), f) {
+            if content_sample(&first.path, len)? == sample {
+                return Err(Error::bad_input(
+                    &f.path,
+                    format!(
+                        "identical to {} (same size, header and data samples): a copy of one file would be read twice; pass only one of them",
+                        first.path.display()
+                    ),
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The first 64 KiB (the header and VLRs, and the first records) and the last 64 KiB of a file.
+fn content_sample(path: &Path, len: u64) -> Result<Vec<u8>> {
+    const PART: u64 = 64 << 10;
+    let mut f = crate::io::files::open_regular(path)?;
+    let mut out = Vec::with_capacity(2 * PART as usize);
+    (&mut f)
+        .take(PART)
+        .read_to_end(&mut out)
+        .map_err(|e| Error::io(path, e))?;
+    if len > PART {
+        f.seek(SeekFrom::Start(len.saturating_sub(PART).max(PART)))
+            .map_err(|e| Error::io(path, e))?;
+        f.take(PART)
+            .read_to_end(&mut out)
+            .map_err(|e| Error::io(path, e))?;
+    }
+    Ok(out)
+}
+
 impl InputFile {
     /// Where this file's points must lie: finite, within the header's xy bounds widened by
     /// 1.5 scale units (writers round bounds and coordinates independently). The tiler relies
@@ -394,31 +614,28 @@ pub fn read_file_chunks(
         return read_laz_chunks(file, layout, chunk_points, &chunks, spare, emit);
     }
     let path = &file.path;
-    let mut reader = Reader::from_path(path).map_err(|e| Error::las(path, e))?;
-    let same = base_format(*reader.header().point_format()) == layout.format
-        && reader.header().transforms() == &layout.transforms;
-    // Parallel LAZ decompression works on whole LAZ chunks: ask for a multiple of
-    // (chunk size × threads) so every call keeps all cores busy with equal shares.
-    let chunk_points = match reader.header().laz_vlr() {
-        Ok(vlr) if !vlr.uses_variable_size_chunks() && vlr.chunk_size() > 0 => {
-            let unit = vlr.chunk_size() as usize * rayon::current_num_threads().max(1);
-            chunk_points.div_ceil(unit).max(1) * unit
-        }
-        _ => chunk_points,
-    };
+    let header = &file.header;
+    let same = base_format(*header.point_format()) == layout.format
+        && header.transforms() == &layout.transforms;
+    // Records are read up to the count `scan_file` settled on (not the `las` reader's, which
+    // prefers the legacy count of LAS 1.4 headers).
+    let mut source = RecordSource::open(file)?;
+    let fresh = || PointDataBuilder::new().for_header(header).build();
     // Conversion decodes into this buffer and emits a converted copy.
     let mut decoded: Option<PointData> = None;
     let mut done: u64 = 0;
     let total = file.points;
     while done < total {
-        let want = (total - done).min(chunk_points as u64);
+        let want = (total - done).min(chunk_points.max(1) as u64);
         let mut data = match decoded.take() {
             Some(d) => d,
-            None => spare()
-                .unwrap_or_else(|| PointDataBuilder::new().for_header(reader.header()).build()),
+            None => match spare() {
+                Some(d) if same && d.format() == header.point_format() => d,
+                _ => fresh(),
+            },
         };
-        let got = reader
-            .fill_points(want, &mut data)
+        source
+            .fill(data.resize_for(want as usize))
             .map_err(|e| {
                 Error::bad_input(
                     path,
@@ -428,16 +645,10 @@ pub fn read_file_chunks(
                     ),
                 )
             })?;
-        if got == 0 {
-            return Err(Error::bad_input(
-                path,
-                format!("header announces {total} points but the data ends after {done}"),
-            ));
-        }
         if same {
             emit(done, data)?;
         } else {
-            let mut converted = Vec::with_capacity(got as usize * layout.record_len);
+            let mut converted = Vec::with_capacity(want as usize * layout.record_len);
             convert_chunk(&data, layout, &mut converted)
                 .map_err(|e| Error::bad_input(path, format!("point {done}+: {e}")))?;
             let out = PointDataBuilder::new()
@@ -448,9 +659,42 @@ pub fn read_file_chunks(
             decoded = Some(data);
             emit(done, out)?;
         }
-        done += got;
+        done += want;
     }
     Ok(done)
+}
+
+/// Sequential access to a file's point records: raw LAS records, or LAZ decoded in order
+/// (files whose chunks are too big to decode whole on the pool).
+enum RecordSource {
+    Las(BufReader<File>),
+    Laz(Box<laz::LasZipDecompressor<'static, BufReader<File>>>),
+}
+
+impl RecordSource {
+    fn open(file: &InputFile) -> Result<RecordSource> {
+        let path = &file.path;
+        let mut f = BufReader::with_capacity(1 << 20, crate::io::files::open_regular(path)?);
+        let raw = las::raw::Header::read_from(&mut f).map_err(|e| Error::las(path, e))?;
+        f.seek(SeekFrom::Start(u64::from(raw.offset_to_point_data)))
+            .map_err(|e| Error::io(path, e))?;
+        if !file.header.point_format().is_compressed {
+            return Ok(RecordSource::Las(f));
+        }
+        let vlr = file.header.laz_vlr().map_err(|e| Error::las(path, e))?;
+        let d = laz::LasZipDecompressor::new(f, vlr).map_err(|e| {
+            Error::bad_input(path, format!("cannot start LAZ decompression: {e}"))
+        })?;
+        Ok(RecordSource::Laz(Box::new(d)))
+    }
+
+    /// Fills `out` with the next records (a whole number of them).
+    fn fill(&mut self, out: &mut [u8]) -> std::io::Result<()> {
+        match self {
+            RecordSource::Las(f) => f.read_exact(out),
+            RecordSource::Laz(d) => d.decompress_many(out),
+        }
+    }
 }
 
 /// Largest LAZ chunk decoded whole, points; files with larger chunks are read through the

@@ -2,9 +2,12 @@
 //! and MCAP drive recordings (decoded and georeferenced into LAS parts, [`mcap`]).
 
 pub mod extra;
+pub mod files;
+pub mod laswrite;
 pub mod input;
 pub mod mcap;
 pub mod output;
+pub mod workspace;
 pub mod pcd;
 
 pub use input::{scan_inputs, InputFile, InputSet};

@@ -4,9 +4,11 @@
 use crate::error::{Error, Result};
 use crate::io::extra;
 use crate::model::RecordLayout;
-use las::{Builder, PointDataBuilder, Version, Writer};
+use crate::io::laswrite::LasFile;
+use crate::io::workspace::OutputDir;
+use las::{Builder, PointDataBuilder, Version};
 use std::fs::File;
-use std::io::{BufWriter, Write};
+use std::io::Write;
 use std::path::{Path, PathBuf};
 
 /// Writes `bytes` to `path` atomically.
@@ -228,18 +230,20 @@ impl TileWriter {
         self.segment_field != SegmentField::None
     }
 
-    /// Writes `records` (raw, in the run layout, core points only) to a temporary sibling of
-    /// `dir/name.<ext>` (and the segment table to `dir/name.segments.tsv`);
-    /// [`PendingTile::commit`] then renames them into place. Splitting the two lets workers
-    /// compress tiles in parallel while one thread decides what becomes visible.
+    /// Writes `records` (raw, in the run layout, core points only) to `stage/name.<ext>` (and
+    /// the segment table to `stage/name.segments.tsv`), where `stage` is the run's private
+    /// staging directory; [`PendingTile::commit`] then moves them into the output directory.
+    /// Splitting the two lets workers compress tiles in parallel while one thread decides
+    /// what becomes visible.
     pub fn prepare(
         &self,
-        dir: &Path,
+        stage: &Path,
         name: &str,
         records: &mut [u8],
         segments: Option<TileSegments<'_>>,
     ) -> Result<PendingTile> {
-        let path = dir.join(format!("{name}.{}", self.extension));
+        let file = format!("{name}.{}", self.extension);
+        let path = stage.join(&file);
         let mut pending = PendingTile { files: Vec::new() };
         let ids = |i: usize| {
             segments
@@ -248,19 +252,18 @@ impl TileWriter {
                 .into()
         };
         let records = self.with_ids(records, ids);
-        let tmp = tmp_path(&path);
-        pending.files.push((tmp.clone(), path));
-        if let Err(e) = self.write_to(&tmp, &records) {
+        pending.files.push((path.clone(), file));
+        if let Err(e) = self.write_to(&path, &records) {
             pending.abandon();
             return Err(e);
         }
         if let Some(s) = segments {
-            let path = dir.join(format!("{name}.segments.tsv"));
-            let tmp = tmp_path(&path);
-            pending.files.push((tmp.clone(), path));
-            if let Err(e) = std::fs::write(&tmp, s.table) {
+            let file = format!("{name}.segments.tsv");
+            let path = stage.join(&file);
+            pending.files.push((path.clone(), file));
+            if let Err(e) = std::fs::write(&path, s.table) {
                 pending.abandon();
-                return Err(Error::io(&tmp, e));
+                return Err(Error::io(&path, e));
             }
         }
         Ok(pending)
@@ -304,7 +307,7 @@ impl TileWriter {
         Ok(d)
     }
 
-    /// Writes a deferred tile into `dir` (temporary names; commit with
+    /// Writes a deferred tile into the staging directory `dir` (commit with
     /// [`PendingTile::commit`]) with local segment id `l` replaced by `ids[l - 1]`, reading
     /// its uncompressed records once, in blocks, and deletes the deferred files. The segment
     /// table gets the global id first and the local id in a `local_id` column.
@@ -346,10 +349,10 @@ impl TileWriter {
             }
             Ok(id)
         };
-        let path = dir.join(format!("{}.{}", d.name, self.extension));
-        let tmp = tmp_path(&path);
+        let file = format!("{}.{}", d.name, self.extension);
+        let tmp = dir.join(&file);
         let mut pending = PendingTile {
-            files: vec![(tmp.clone(), path)],
+            files: vec![(tmp.clone(), file)],
         };
         let res = (|| -> Result<()> {
             let file = File::open(&d.raw).map_err(|e| Error::io(&d.raw, e))?;
@@ -372,9 +375,7 @@ impl TileWriter {
                     .with_transforms(self.out_layout.transforms)
                     .build_from_bytes(buf)
                     .map_err(|e| Error::las(&tmp, e))?;
-                writer
-                    .write_points(&data)
-                    .map_err(|e| Error::las(&tmp, e))?;
+                writer.write_points(&data)?;
                 left -= n;
             }
             Self::close_writer(writer, &tmp)?;
@@ -391,9 +392,9 @@ impl TileWriter {
                 })?;
                 out.push_str(&format!("{}\t{local}\t{rest}\n", global(local)?));
             }
-            let tpath = dir.join(format!("{}.segments.tsv", d.name));
-            let ttmp = tmp_path(&tpath);
-            pending.files.push((ttmp.clone(), tpath));
+            let tfile = format!("{}.segments.tsv", d.name);
+            let ttmp = dir.join(&tfile);
+            pending.files.push((ttmp.clone(), tfile));
             std::fs::write(&ttmp, out).map_err(|e| Error::io(&ttmp, e))
         })();
         if let Err(e) = res {
@@ -403,22 +404,14 @@ impl TileWriter {
         Ok(pending)
     }
 
-    fn open_writer(&self, tmp: &Path) -> Result<Writer<BufWriter<File>>> {
-        let file = File::create(tmp).map_err(|e| Error::io(tmp, e))?;
+    fn open_writer(&self, tmp: &Path) -> Result<LasFile> {
         // One tile per worker thread: sequential compression keeps each worker on one core.
         let opts = las::WriterOptions::default().with_laz_parallelism(las::LazParallelism::No);
-        Writer::with_options(
-            BufWriter::with_capacity(1 << 20, file),
-            self.header.clone(),
-            opts,
-        )
-        .map_err(|e| Error::las(tmp, e))
+        LasFile::create(tmp, self.header.clone(), opts)
     }
 
-    fn close_writer(mut writer: Writer<BufWriter<File>>, tmp: &Path) -> Result<()> {
-        writer.close().map_err(|e| Error::las(tmp, e))?;
-        let mut inner = writer.into_inner().map_err(|e| Error::las(tmp, e))?;
-        inner.flush().map_err(|e| Error::io(tmp, e))
+    fn close_writer(writer: LasFile, _tmp: &Path) -> Result<()> {
+        writer.finish()
     }
 
     // No fsync: rename after a complete write already guarantees readers never see a partial
@@ -435,7 +428,7 @@ impl TileWriter {
             .build();
         for block in records.chunks(BLOCK * rl) {
             slab.resize_for(block.len() / rl).copy_from_slice(block);
-            writer.write_points(&slab).map_err(|e| Error::las(tmp, e))?;
+            writer.write_points(&slab)?;
         }
         Self::close_writer(writer, tmp)
     }
@@ -461,28 +454,28 @@ impl DeferredTile {
     }
 }
 
-/// A completely written tile (its LAS/LAZ file and, with segmentation, its segment table)
-/// under temporary names.
+/// A completely written tile (its LAS/LAZ file and, with segmentation, its segment table) in
+/// the run's staging directory.
 #[derive(Debug)]
 pub struct PendingTile {
-    /// (temporary, final) paths.
-    files: Vec<(PathBuf, PathBuf)>,
+    /// (staged path, file name in the output directory); the point file first.
+    files: Vec<(PathBuf, String)>,
 }
 
 impl PendingTile {
-    /// Renames the tile's files into place (the point file last: a visible tile always has
-    /// its table) and returns the point file's path.
-    pub fn commit(self) -> Result<PathBuf> {
-        let mut point_file = PathBuf::new();
-        for (i, (tmp, path)) in self.files.iter().enumerate().rev() {
-            std::fs::rename(tmp, path).map_err(|e| Error::io(path, e))?;
-            if i == 0 {
-                point_file = path.clone();
-            }
+    /// Moves the tile's files into the output directory (the point file last: a visible tile
+    /// always has its table) and returns the point file's path.
+    pub fn commit(self, out: &mut OutputDir) -> Result<PathBuf> {
+        let files: Vec<(PathBuf, String)> = self.files.iter().rev().cloned().collect();
+        if let Err(e) = out.commit(&files) {
+            self.abandon();
+            return Err(e);
         }
-        Ok(point_file)
+        Ok(out
+            .path()
+            .join(self.files.first().map(|f| f.1.as_str()).unwrap_or_default()))
     }
-    /// Deletes the temporary files (the run failed).
+    /// Deletes the staged files (the run failed).
     pub fn abandon(self) {
         for (tmp, _) in &self.files {
             let _ = std::fs::remove_file(tmp);

@@ -265,7 +265,16 @@ fn retain_by<T>(v: &mut Vec<T>, keep: &[bool]) {
 
 /// Reads a PCD file; errors name the file.
 pub fn read_pcd(path: &Path) -> Result<PcdCloud, PcdError> {
-    let bytes = std::fs::read(path).map_err(|source| PcdError::Io {
+    // A FIFO or device would block or never end: only regular files are read.
+    let bytes = crate::io::files::open_regular(path)
+        .map_err(|e| match e {
+            crate::error::Error::Io { source, .. } => source,
+            other => std::io::Error::other(other.to_string()),
+        })
+        .and_then(|mut f| {
+            let mut b = Vec::new();
+            std::io::Read::read_to_end(&mut f, &mut b).map(|_| b)
+        }).map_err(|source| PcdError::Io {
         path: path.to_path_buf(),
         source,
     })?;

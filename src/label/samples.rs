@@ -73,7 +73,7 @@ impl SampleSet {
             .map(|e| e.to_ascii_lowercase());
         match ext.as_deref() {
             Some("json") => {
-                let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+                let text = crate::io::files::read_text_bounded(path, 256 << 20)?;
                 let set: SampleSet = serde_json::from_str(&text).map_err(|e| {
                     Error::bad_input(path, format!("not a tessera sample set: {e}"))
                 })?;
@@ -291,7 +291,7 @@ impl Polygon {
 /// features, each with a numeric `class` property (and optionally `name`). Coordinates are in
 /// the point cloud's projected CRS.
 pub fn read_polygons(path: &Path) -> Result<Vec<Polygon>> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let text = crate::io::files::read_text_bounded(path, 1 << 30)?;
     let v: serde_json::Value = serde_json::from_str(&text)
         .map_err(|e| Error::bad_input(path, format!("not JSON: {e}")))?;
     let bad = |m: String| Error::bad_input(path, m);

@@ -15,6 +15,10 @@ use serde::Serialize;
 /// grow with chunk size, and for allocator slack.
 pub const FIXED_BYTES: u64 = 40 << 20;
 
+/// Largest memory budget accepted (1 PiB): far above any machine, far below where the plan's
+/// byte arithmetic could overflow.
+pub const MAX_BUDGET_BYTES: u64 = 1 << 50;
+
 /// The resolved plan.
 #[derive(Debug, Clone, Serialize)]
 pub struct BudgetPlan {
@@ -100,7 +104,16 @@ impl BudgetPlan {
             .map(|s| s.context_bytes + s.tile_bytes)
             .max()
             .unwrap_or(0);
-        let budget = budget_mb << 20;
+        // Checked: a shift wrapped 17592186044480 MiB (2^44 − 64) to a 64 MiB plan.
+        let budget = budget_mb
+            .checked_mul(1 << 20)
+            .filter(|b| *b <= MAX_BUDGET_BYTES)
+            .ok_or_else(|| {
+                Error::Config(format!(
+                    "pipeline.memory_budget_mb = {budget_mb} is beyond {} MiB (1 PiB)",
+                    MAX_BUDGET_BYTES >> 20
+                ))
+            })?;
         let workers = workers.max(1);
         let usable = budget.saturating_sub(FIXED_BYTES);
         // Reader: ~4 chunks alive (being decoded, queued ×2, being binned).

@@ -5,6 +5,7 @@
 use super::stage::TileReport;
 use crate::error::{Error, Result};
 use crate::io::output::DeferredTile;
+use crate::io::workspace::OutputDir;
 use crate::io::{PendingTile, TileWriter};
 use crate::report::{Summary, TileSummary};
 use crate::stitch::{BorderSummary, CellKey, CellRelease, StitchParams, Stitcher};
@@ -61,7 +62,7 @@ impl ToWriter {
 /// The writer thread's state.
 pub(super) struct Collector<'a> {
     writer: &'a TileWriter,
-    out_dir: &'a Path,
+    out: &'a mut OutputDir,
     stitcher: Option<Stitcher<(TileMeta, DeferredTile)>>,
     pub summary: Summary,
     pub write_s: f64,
@@ -69,16 +70,16 @@ pub(super) struct Collector<'a> {
 }
 
 impl<'a> Collector<'a> {
-    /// A collector writing into `out_dir`; stitching when `stitch` is given (params, strip
-    /// width).
+    /// A collector committing tiles into `out`; stitching when `stitch` is given (params,
+    /// strip width).
     pub fn new(
         writer: &'a TileWriter,
-        out_dir: &'a Path,
+        out: &'a mut OutputDir,
         stitch: Option<(StitchParams, f64)>,
     ) -> Self {
         Collector {
             writer,
-            out_dir,
+            out,
             stitcher: stitch.map(|(p, strip_m)| Stitcher::new(p, strip_m)),
             summary: Summary::default(),
             write_s: 0.0,
@@ -106,7 +107,7 @@ impl<'a> Collector<'a> {
                 let Processed { meta, output } = *p;
                 match output {
                     TileOutput::Written(pending) => {
-                        let path = pending.commit()?;
+                        let path = pending.commit(self.out)?;
                         self.book(meta, &path);
                         self.write_s += t.elapsed().as_secs_f64();
                     }
@@ -153,10 +154,11 @@ impl<'a> Collector<'a> {
                 d.abandon();
                 continue;
             }
+            let stage = self.out.stage().to_path_buf();
             match self
                 .writer
-                .finish_deferred(self.out_dir, d, &r.ids)
-                .and_then(|p| p.commit())
+                .finish_deferred(&stage, d, &r.ids)
+                .and_then(|p| p.commit(self.out))
             {
                 Ok(path) => self.book(meta, &path),
                 Err(e) => res = Err(e),

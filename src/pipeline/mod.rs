@@ -20,7 +20,8 @@ use crate::config::Config;
 use crate::error::{Error, Result};
 use crate::io::input::read_file_chunks;
 use crate::io::output::{segment_table_tsv, SegmentIdType, TileSegments};
-use crate::io::{scan_inputs, write_atomic, InputSet, TileWriter};
+use crate::io::workspace::{OutputDir, WorkDir};
+use crate::io::{scan_inputs, InputSet, TileWriter};
 use crate::report::{peak_rss_mb, Summary};
 use crate::stitch::BorderSummary;
 use crate::tiling::{
@@ -50,7 +51,9 @@ enum ReadMsg {
 /// Everything the pipeline threads share for one run.
 struct RunCtx<'a> {
     set: &'a InputSet,
-    out_dir: &'a Path,
+    /// The output's private staging directory: workers write finished tiles here, the writer
+    /// commits them into the output directory.
+    stage: &'a Path,
     spill_dir: &'a Path,
     cfg: &'a Config,
     plan: &'a BudgetPlan,
@@ -120,11 +123,28 @@ pub fn run_with_stages(
     progress: ProgressFn,
 ) -> Result<Summary> {
     let t0 = Instant::now();
+    // The output directory is taken first: a second run into it refuses before any work, and
+    // an earlier run's outputs are replaced only with `output.overwrite`.
+    let mut out = OutputDir::open(out_dir, cfg.output.overwrite)?;
+    // Spill files and decoded MCAP parts live in a fresh work directory of this run: inside
+    // `pipeline.spill_dir` when set (which itself is never removed), else in the output's
+    // staging directory. Both go away with the run, also when it fails.
+    let spill_work = if cfg.pipeline.spill_dir.is_empty() {
+        None
+    } else {
+        Some(WorkDir::create(Path::new(&cfg.pipeline.spill_dir))?)
+    };
+    let work_base = spill_work
+        .as_ref()
+        .map(|w| w.path().to_path_buf())
+        .unwrap_or_else(|| out.stage().to_path_buf());
+    // The output directory (and anything under it) is never an input.
+    let inputs = crate::io::input::expand_paths_excluding(inputs, &[out_dir.to_path_buf()])?;
     // MCAP drives are decoded and georeferenced first, into LAS parts whose headers carry the
     // exact bounds the tiler needs; the parts are removed when `staged` is dropped.
     let staged = crate::io::mcap::stage_inputs(
-        inputs,
-        &crate::io::mcap::convert::work_dir(out_dir, &cfg.pipeline.spill_dir),
+        &inputs,
+        &work_base.join("mcap"),
         &cfg.mcap,
         cfg.pipeline.threads,
     )?;
@@ -177,14 +197,7 @@ pub fn run_with_stages(
     if stitching {
         plan.reserve_stitch()?;
     }
-    std::fs::create_dir_all(out_dir).map_err(|e| Error::io(out_dir, e))?;
-    let spill_dir = if cfg.pipeline.spill_dir.is_empty() {
-        out_dir.join(".tessera-spill")
-    } else {
-        PathBuf::from(&cfg.pipeline.spill_dir)
-    };
-    // A previous crashed run may have left spill files; they are never valid for a new run.
-    let _ = std::fs::remove_dir_all(&spill_dir);
+    let spill_dir = work_base.join("spill");
     std::fs::create_dir_all(&spill_dir).map_err(|e| Error::io(&spill_dir, e))?;
     // Stitching needs the segment stage (whose buffer strip is the overlap the tiles are
     // matched in). Global ids are point ordinals + 1: u32 while the run has fewer points.
@@ -220,10 +233,11 @@ pub fn run_with_stages(
         segments.then_some(id_type),
     )?;
     let far_thin = far_thin(cfg, stages);
+    let stage_dir = out.stage().to_path_buf();
     let ctx = RunCtx {
         far_thin,
         set: &set,
-        out_dir,
+        stage: &stage_dir,
         spill_dir: &spill_dir,
         cfg,
         plan: &plan,
@@ -231,9 +245,7 @@ pub fn run_with_stages(
         writer: &writer,
         stitch,
     };
-    let res = run_inner(&ctx, progress);
-    let _ = std::fs::remove_dir_all(&spill_dir);
-    let mut summary = res?;
+    let mut summary = run_inner(&ctx, &mut out, progress)?;
     summary.seconds.insert("scan".into(), scan_s);
     summary
         .seconds
@@ -255,18 +267,24 @@ pub fn run_with_stages(
     }
     summary.budget = Some(plan);
     summary.peak_rss_mb = peak_rss_mb().unwrap_or(0.0);
-    if summary.points_out != summary.points_in {
+    // Every point the headers promise was read (the reader checks each file's count), and
+    // every point read was written exactly once.
+    if summary.points_read != summary.points_in || summary.points_out != summary.points_in {
         return Err(Error::Internal(format!(
-            "wrote {} points but the inputs hold {}",
-            summary.points_out, summary.points_in
+            "the input headers promise {} points; {} were read and {} written",
+            summary.points_in, summary.points_read, summary.points_out
         )));
     }
     let json = serde_json::to_vec_pretty(&summary).map_err(|e| Error::Internal(e.to_string()))?;
-    write_atomic(&out_dir.join("summary.json"), &json)?;
+    // The run's files are all in place; the summary comes last and marks the run finished.
+    // (A failure before this point drops `out`, which removes this run's partial outputs.)
+    out.finish(&json)?;
+    drop(staged);
+    drop(spill_work);
     Ok(summary)
 }
 
-fn run_inner(ctx: &RunCtx, progress: ProgressFn) -> Result<Summary> {
+fn run_inner(ctx: &RunCtx, out: &mut OutputDir, progress: ProgressFn) -> Result<Summary> {
     let RunCtx {
         set,
         spill_dir,
@@ -304,7 +322,7 @@ fn run_inner(ctx: &RunCtx, progress: ProgressFn) -> Result<Summary> {
     let twrite = Instant::now();
     let mut collector = Collector::new(
         ctx.writer,
-        ctx.out_dir,
+        out,
         ctx.stitch
             .as_ref()
             .map(|st| (cfg.stitch.clone(), st.strip_m)),
@@ -473,6 +491,7 @@ fn run_inner(ctx: &RunCtx, progress: ProgressFn) -> Result<Summary> {
     summary.tiles = summary.tile_list.len();
     summary.tiles_split = summary.split_tiles.len();
     summary.max_open_tiles = max_open.load(Ordering::Relaxed) as usize;
+    summary.points_read = read_points.load(Ordering::Relaxed);
     summary.seconds.insert(
         "read".into(),
         *tread.lock().unwrap_or_else(|p| p.into_inner()),
@@ -531,7 +550,7 @@ fn work(
 ) -> Result<()> {
     let RunCtx {
         set,
-        out_dir,
+        stage,
         spill_dir,
         cfg,
         plan,
@@ -609,7 +628,7 @@ fn work(
                 writer.defer(spill_dir, &name, &mut records, seg)?,
                 Box::new(summary),
             ),
-            (_, seg) => TileOutput::Written(writer.prepare(out_dir, &name, &mut records, seg)?),
+            (_, seg) => TileOutput::Written(writer.prepare(stage, &name, &mut records, seg)?),
         };
         *spare = TileBuffers::reclaim(&mut tile, records);
         drop(tile);

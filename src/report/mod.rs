@@ -38,6 +38,9 @@ pub struct Summary {
     pub points_in: u64,
     /// Core points written (must equal `points_in`).
     pub points_out: u64,
+    /// Points the reader read (checked equal to `points_in`, the headers' promise).
+    #[serde(default)]
+    pub points_read: u64,
     /// Output tiles written.
     pub tiles: usize,
     /// Grid tiles that were split by the quadtree to fit the budget.

@@ -15,9 +15,9 @@ pub use scene::{generate_slab, segments, Blocks, SceneParams, SegmentTruth, Synt
 use crate::error::{Error, Result};
 use crate::io::output::{tmp_path, write_atomic};
 use las::point::Format;
-use las::{Builder, Point, Transform, Vector, Version, Vlr, Writer};
+use crate::io::laswrite::LasFile;
+use las::{Builder, Point, Transform, Vector, Version, Vlr};
 use rayon::prelude::*;
-use std::io::BufWriter;
 use std::path::Path;
 
 /// World offset added to the scene's local coordinates, so files look like projected
@@ -135,17 +135,16 @@ pub fn write_scene(params: &SceneParams, dir: &Path, file_length_m: f64) -> Resu
 /// Writes `pts` to `path` (LAZ, atomically: temp file, then rename).
 fn write_points(path: &Path, header: &las::Header, pts: &[SynthPoint]) -> Result<()> {
     let tmp = tmp_path(path);
-    let res = (|| -> las::Result<()> {
-        let f = std::fs::File::create(&tmp)?;
-        let mut w = Writer::new(BufWriter::with_capacity(1 << 20, f), header.clone())?;
+    let res = (|| -> Result<()> {
+        let mut w = LasFile::create(&tmp, header.clone(), Default::default())?;
         for p in pts {
             w.write_point(to_point(p))?;
         }
-        w.close()
+        w.finish()
     })();
     if let Err(e) = res {
         let _ = std::fs::remove_file(&tmp);
-        return Err(Error::las(path, e));
+        return Err(e);
     }
     std::fs::rename(&tmp, path).map_err(|e| Error::io(path, e))
 }

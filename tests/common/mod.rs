@@ -12,6 +12,12 @@ pub fn data_dir() -> Option<PathBuf> {
         .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
     if d.is_dir() {
         Some(d)
+    } else if std::env::var("CI").as_deref() == Ok("true") {
+        // Under CI the real-data gates must run: missing data fails them instead of a SKIP.
+        panic!(
+            "shared data not found at {} (set TESSERA_DATA); CI=true requires it",
+            d.display()
+        );
     } else {
         eprintln!(
             "SKIP: shared data not found at {} (set TESSERA_DATA)",
@@ -26,6 +32,8 @@ pub fn data_file(rel: &str) -> Option<PathBuf> {
     let p = data_dir()?.join(rel);
     if p.is_file() {
         Some(p)
+    } else if std::env::var("CI").as_deref() == Ok("true") {
+        panic!("{} not found; CI=true requires the shared data", p.display());
     } else {
         eprintln!("SKIP: {} not found", p.display());
         None

@@ -380,9 +380,9 @@ pub fn stage_inputs(
             work_dir: None,
         });
     }
-    // A crashed earlier run may have left parts behind; they are never reused.
-    let _ = std::fs::remove_dir_all(work_dir);
-    std::fs::create_dir_all(work_dir).map_err(|e| Error::io(work_dir, e))?;
+    // `work_dir` must be new: it is removed with the staged inputs. The pipeline passes a
+    // subdirectory of its own fresh work directory.
+    std::fs::create_dir(work_dir).map_err(|e| Error::io(work_dir, e))?;
     let mut staged = StagedInputs {
         paths: Vec::new(),
         reports: Vec::new(),
@@ -400,12 +400,3 @@ pub fn stage_inputs(
     Ok(staged)
 }
 
-/// Where a run keeps the LAS parts of its MCAP inputs: beside the spill directory (which is
-/// wiped when the pipeline starts), i.e. `<out>/.tessera-mcap` or `<spill_dir>-mcap`.
-pub fn work_dir(out_dir: &Path, spill_dir: &str) -> PathBuf {
-    if spill_dir.is_empty() {
-        out_dir.join(".tessera-mcap")
-    } else {
-        PathBuf::from(format!("{}-mcap", spill_dir.trim_end_matches('/')))
-    }
-}

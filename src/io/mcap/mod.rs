@@ -191,7 +191,12 @@ impl McapParams {
 pub fn is_mcap(path: &Path) -> bool {
     use std::io::Read;
     let mut head = [0u8; 8];
-    match std::fs::File::open(path).and_then(|mut f| f.read_exact(&mut head)) {
+    // Only regular files are opened: opening a FIFO would block until a writer appears.
+    let opened = crate::io::files::open_regular(path).ok();
+    match opened
+        .ok_or_else(|| std::io::Error::other("not a regular file"))
+        .and_then(|mut f| f.read_exact(&mut head))
+    {
         Ok(()) => head == mcap::MAGIC,
         Err(_) => has_mcap_extension(path),
     }

@@ -7,9 +7,8 @@ use super::place::Placed;
 use super::McapParams;
 use crate::error::{Error, Result};
 use las::point::Format;
-use las::{Builder, PointDataBuilder, Transform, Vector, Version, Vlr, Writer};
-use std::fs::File;
-use std::io::BufWriter;
+use crate::io::laswrite::LasFile;
+use las::{Builder, PointDataBuilder, Transform, Vector, Version, Vlr};
 use std::path::{Path, PathBuf};
 
 /// Records buffered before they are handed to the LAS writer.
@@ -20,7 +19,7 @@ pub(crate) struct PartWriter {
     dir: PathBuf,
     stem: String,
     header: las::Header,
-    writer: Option<Writer<BufWriter<File>>>,
+    writer: Option<LasFile>,
     current: Option<PathBuf>,
     in_part: u64,
     part_points: u64,
@@ -66,9 +65,7 @@ impl PartWriter {
             let path = self
                 .dir
                 .join(format!("{}.part{:04}.las", self.stem, self.parts.len()));
-            let f = File::create(&path).map_err(|e| Error::io(&path, e))?;
-            let w = Writer::new(BufWriter::with_capacity(1 << 20, f), self.header.clone())
-                .map_err(|e| Error::las(&path, e))?;
+            let w = LasFile::create(&path, self.header.clone(), Default::default())?;
             self.writer = Some(w);
             self.current = Some(path);
             self.in_part = 0;
@@ -93,7 +90,7 @@ impl PartWriter {
             .with_transforms(self.transforms)
             .build_from_bytes(std::mem::take(&mut self.buf))
             .map_err(|e| Error::las(path, e))?;
-        w.write_points(&data).map_err(|e| Error::las(path, e))
+        w.write_points(&data)
     }
 
     /// Ends the current part if it is full (called between clouds, so a cloud never spans two
@@ -107,8 +104,8 @@ impl PartWriter {
 
     pub(crate) fn close_part(&mut self) -> Result<()> {
         self.flush()?;
-        if let (Some(mut w), Some(path)) = (self.writer.take(), self.current.take()) {
-            w.close().map_err(|e| Error::las(&path, e))?;
+        if let (Some(w), Some(path)) = (self.writer.take(), self.current.take()) {
+            w.finish()?;
             self.parts.push(path);
         }
         Ok(())

@@ -107,7 +107,7 @@ pub struct McapSource {
 impl McapSource {
     /// Opens and maps `path`, checks the magic and reads the summary when there is one.
     pub fn open(path: &Path) -> Result<Self> {
-        let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+        let file = crate::io::files::open_regular(path)?;
         let map = crate::sys::map_readonly(&file).map_err(|e| Error::io(path, e))?;
         if map.len() < mcap::MAGIC.len() || &map[..mcap::MAGIC.len()] != mcap::MAGIC {
             let shown: String = map[..map.len().min(8)]

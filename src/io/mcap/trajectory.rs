@@ -39,7 +39,8 @@ fn parse_time_ns(s: &str) -> Option<i128> {
 
 /// Reads a trajectory file as transforms `parent → child`.
 pub fn read_trajectory(path: &Path, parent: &str, child: &str) -> Result<Vec<TransformStamped>> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    // Bounded: a trajectory of a day-long drive at 200 Hz is ~100 MB of text.
+    let text = crate::io::files::read_text_bounded(path, 1 << 30)?;
     let mut out = Vec::new();
     let mut seen_data = false;
     for (ln, line) in text.lines().enumerate() {

@@ -1,0 +1,625 @@
+//! What a run owns on disk, and nothing more.
+//!
+//! - A [`WorkDir`] is a fresh directory with a unique name (`.tessera-work-<pid>-<nonce>`)
+//!   created inside a location the user names (the spill directory, or the output
+//!   directory). It holds a marker file locked for the run's lifetime; it is the only thing
+//!   tessera ever removes recursively. The location itself, its other contents and its
+//!   siblings are never touched. Work directories left by a killed run are recognised by
+//!   their marker with nobody holding its lock, and removed by the next run that looks there.
+//! - An [`OutputDir`] is the user's output directory, held with a lock file for the run
+//!   (a second run into it refuses). A journal lists every file a run puts there, written
+//!   before the file appears, so a later `--overwrite` removes exactly one run's files and a
+//!   killed run's partial output is known. Files the journal does not name are never removed,
+//!   and never replaced: a commit onto an existing path is an error.
+
+use crate::error::{Error, Result};
+use std::fs::{File, OpenOptions, TryLockError};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+/// Name prefix of work directories.
+pub const WORK_PREFIX: &str = ".tessera-work-";
+/// Marker file inside a work directory (locked while its run lives).
+pub const WORK_MARKER: &str = "TESSERA-WORK-DIR";
+/// Lock file of an output directory.
+pub const LOCK_FILE: &str = ".tessera.lock";
+/// Journal of an output directory: the files the last run there wrote.
+pub const JOURNAL: &str = ".tessera-journal";
+/// The run summary's file name.
+pub const SUMMARY: &str = "summary.json";
+
+const JOURNAL_HEADER: &str = "tessera-journal 1";
+
+/// Whether `dir` is a tessera work directory (by name and marker).
+pub fn is_work_dir(dir: &Path) -> bool {
+    dir.file_name()
+        .and_then(|n| n.to_str())
+        .is_some_and(|n| n.starts_with(WORK_PREFIX))
+        && dir.join(WORK_MARKER).is_file()
+}
+
+/// Whether `dir` holds a tessera run's outputs (a journal or a lock file).
+pub fn is_output_dir(dir: &Path) -> bool {
+    dir.join(JOURNAL).is_file() || dir.join(LOCK_FILE).is_file()
+}
+
+/// A unique, marked directory a run creates and removes (see the module docs).
+#[derive(Debug)]
+pub struct WorkDir {
+    path: PathBuf,
+    /// The locked marker: held until the directory is gone.
+    _marker: File,
+}
+
+impl WorkDir {
+    /// Creates a fresh work directory inside `base` (created if missing; never removed).
+    pub fn create(base: &Path) -> Result<WorkDir> {
+        std::fs::create_dir_all(base).map_err(|e| Error::io(base, e))?;
+        sweep_stale(base);
+        let nonce = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map(|d| d.as_nanos())
+            .unwrap_or(0);
+        for attempt in 0u32.. {
+            let path = base.join(format!(
+                "{WORK_PREFIX}{}-{nonce:x}-{attempt}",
+                std::process::id()
+            ));
+            match std::fs::create_dir(&path) {
+                Ok(()) => {
+                    // The marker is locked before it gets its name, so a concurrent sweep
+                    // never sees an unlocked marker of a live run.
+                    let tmp = path.join(".marker.tmp");
+                    let marker = (|| -> std::io::Result<File> {
+                        let mut f = File::create(&tmp)?;
+                        f.lock()?;
+                        writeln!(
+                            f,
+                            "tessera work directory of process {}; removed when its run ends",
+                            std::process::id()
+                        )?;
+                        std::fs::rename(&tmp, path.join(WORK_MARKER))?;
+                        Ok(f)
+                    })()
+                    .map_err(|e| {
+                        let _ = std::fs::remove_dir_all(&path);
+                        Error::io(&path, e)
+                    })?;
+                    return Ok(WorkDir {
+                        path,
+                        _marker: marker,
+                    });
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists && attempt < 1000 => {}
+                Err(e) => return Err(Error::io(&path, e)),
+            }
+        }
+        unreachable!("the loop returns")
+    }
+
+    /// The directory.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// A subdirectory (created).
+    pub fn subdir(&self, name: &str) -> Result<PathBuf> {
+        let p = self.path.join(name);
+        std::fs::create_dir_all(&p).map_err(|e| Error::io(&p, e))?;
+        Ok(p)
+    }
+}
+
+impl Drop for WorkDir {
+    fn drop(&mut self) {
+        // Only this run's own, uniquely named directory.
+        if let Err(e) = std::fs::remove_dir_all(&self.path) {
+            if e.kind() != std::io::ErrorKind::NotFound {
+                tracing::warn!(
+                    "could not remove the work directory {}: {e}",
+                    self.path.display()
+                );
+            }
+        }
+    }
+}
+
+/// Removes work directories in `base` left by runs that no longer exist (their marker is
+/// not locked). Live runs' directories and everything else are left alone.
+fn sweep_stale(base: &Path) {
+    let Ok(rd) = std::fs::read_dir(base) else {
+        return;
+    };
+    for entry in rd.flatten() {
+        let path = entry.path();
+        let is_dir = entry.file_type().map(|t| t.is_dir()).unwrap_or(false);
+        if !is_dir || !is_work_dir(&path) {
+            continue;
+        }
+        let Ok(marker) = File::open(path.join(WORK_MARKER)) else {
+            continue;
+        };
+        match marker.try_lock() {
+            Ok(()) => {
+                tracing::info!(
+                    "removing {} (left by an earlier run that did not finish)",
+                    path.display()
+                );
+                let _ = std::fs::remove_dir_all(&path);
+            }
+            Err(TryLockError::WouldBlock) => {}
+            Err(TryLockError::Error(_)) => {}
+        }
+    }
+}
+
+/// What an earlier run left in an output directory.
+#[derive(Debug, Default)]
+struct Previous {
+    /// Files it wrote (names inside the directory).
+    files: Vec<String>,
+    /// Whether it finished (wrote its summary).
+    finished: bool,
+    /// Where the list came from.
+    source: &'static str,
+}
+
+/// The user's output directory, held for one run (see the module docs).
+#[derive(Debug)]
+pub struct OutputDir {
+    dir: PathBuf,
+    /// The locked lock file: held until the run ends.
+    _lock: File,
+    journal: File,
+    /// Staging area for files before they are committed (same file system as `dir`).
+    stage: WorkDir,
+    /// Files this run committed, in order.
+    committed: Vec<String>,
+    finished: bool,
+    /// The run created the directory (a failed run then removes it if nothing else is there).
+    created: bool,
+}
+
+/// Removes a directory `open` created, if it holds nothing but the lock file.
+struct CreatedDir {
+    dir: PathBuf,
+    created: bool,
+}
+
+impl Drop for CreatedDir {
+    fn drop(&mut self) {
+        if self.created {
+            remove_if_only_lock(&self.dir);
+        }
+    }
+}
+
+/// Removes `dir` when it holds only tessera's lock file (a run created it and failed).
+fn remove_if_only_lock(dir: &Path) {
+    let only_lock = std::fs::read_dir(dir)
+        .map(|rd| {
+            rd.flatten()
+                .all(|e| e.file_name().to_str() == Some(LOCK_FILE))
+        })
+        .unwrap_or(false);
+    if only_lock {
+        let _ = std::fs::remove_file(dir.join(LOCK_FILE));
+        let _ = std::fs::remove_dir(dir);
+    }
+}
+
+impl OutputDir {
+    /// Takes `dir` (created if missing) for a run. Refuses when another run holds it, and
+    /// when an earlier run's outputs are there unless `overwrite`, which removes exactly the
+    /// files that run recorded.
+    pub fn open(dir: &Path, overwrite: bool) -> Result<OutputDir> {
+        let created = !dir.exists();
+        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+        let lock_path = dir.join(LOCK_FILE);
+        let mut lock = OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(&lock_path)
+            .map_err(|e| Error::io(&lock_path, e))?;
+        match lock.try_lock() {
+            Ok(()) => {}
+            Err(TryLockError::WouldBlock) => {
+                let holder = std::fs::read_to_string(&lock_path).unwrap_or_default();
+                return Err(Error::OutputDir {
+                    path: dir.to_path_buf(),
+                    reason: format!(
+                        "another tessera run is writing into it ({}); wait for it or choose another --out",
+                        holder.trim()
+                    ),
+                    usage: false,
+                });
+            }
+            Err(TryLockError::Error(e)) => return Err(Error::io(&lock_path, e)),
+        }
+        // From here on, leaving (also by an error below) undoes what `open` created.
+        let mut guard = CreatedDir {
+            dir: dir.to_path_buf(),
+            created,
+        };
+        let _ = lock.set_len(0).and_then(|_| {
+            writeln!(
+                lock,
+                "process {} on {}",
+                std::process::id(),
+                hostname().unwrap_or_else(|| "this host".into())
+            )
+        });
+        let prev = previous_run(dir)?;
+        if let Some(prev) = &prev {
+            if !overwrite {
+                let what = if prev.finished {
+                    "the outputs of an earlier run"
+                } else {
+                    "the partial outputs of an earlier run that did not finish"
+                };
+                return Err(Error::OutputDir {
+                    path: dir.to_path_buf(),
+                    reason: format!(
+                        "holds {what} ({} files, listed in its {}); pass --overwrite to replace them (only those files are removed), or choose another --out",
+                        prev.files.len(),
+                        prev.source
+                    ),
+                    usage: true,
+                });
+            }
+        }
+        // Staging first: it sweeps work directories of killed runs.
+        let stage = WorkDir::create(dir)?;
+        if let Some(prev) = prev {
+            remove_previous(dir, &prev)?;
+        }
+        let jpath = dir.join(JOURNAL);
+        let mut journal = File::create(&jpath).map_err(|e| Error::io(&jpath, e))?;
+        writeln!(
+            journal,
+            "{JOURNAL_HEADER}\tprocess {}\tstarted {}",
+            std::process::id(),
+            std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map(|d| d.as_secs())
+                .unwrap_or(0)
+        )
+        .map_err(|e| Error::io(&jpath, e))?;
+        let foreign = foreign_entries(dir);
+        if foreign > 0 {
+            tracing::info!(
+                "{}: {foreign} entries not written by tessera are left untouched",
+                dir.display()
+            );
+        }
+        guard.created = false;
+        Ok(OutputDir {
+            dir: dir.to_path_buf(),
+            created,
+            _lock: lock,
+            journal,
+            stage,
+            committed: Vec::new(),
+            finished: false,
+        })
+    }
+
+    /// The directory.
+    pub fn path(&self) -> &Path {
+        &self.dir
+    }
+
+    /// Where files are written before [`OutputDir::commit`] moves them in (private to this
+    /// run, on the output's file system, removed with the run).
+    pub fn stage(&self) -> &Path {
+        self.stage.path()
+    }
+
+    /// Moves staged files into the directory under `name`s: each is recorded in the journal
+    /// first, and an existing file of that name is never replaced.
+    pub fn commit(&mut self, files: &[(PathBuf, String)]) -> Result<()> {
+        for (staged, name) in files {
+            check_name(name)?;
+            let target = self.dir.join(name);
+            if std::fs::symlink_metadata(&target).is_ok() {
+                return Err(Error::OutputDir {
+                    path: self.dir.clone(),
+                    reason: format!(
+                        "{name} already exists and was not written by this run; refusing to replace it"
+                    ),
+                    usage: false,
+                });
+            }
+            writeln!(self.journal, "file\t{name}").map_err(|e| Error::io(self.dir.join(JOURNAL), e))?;
+            self.committed.push(name.clone());
+            std::fs::rename(staged, &target).map_err(|e| Error::io(&target, e))?;
+        }
+        Ok(())
+    }
+
+    /// Files committed so far.
+    pub fn committed(&self) -> &[String] {
+        &self.committed
+    }
+
+    /// Writes the run summary (the last file) and marks the run finished.
+    pub fn finish(mut self, summary: &[u8]) -> Result<()> {
+        let staged = self.stage().join(SUMMARY);
+        std::fs::write(&staged, summary).map_err(|e| Error::io(&staged, e))?;
+        self.commit(&[(staged, SUMMARY.to_string())])?;
+        writeln!(self.journal, "done").map_err(|e| Error::io(self.dir.join(JOURNAL), e))?;
+        self.finished = true;
+        Ok(())
+    }
+}
+
+impl Drop for OutputDir {
+    /// A run that fails takes its partial outputs with it: the directory is left as the run
+    /// found it (less what `--overwrite` removed). A killed run cannot do this; its journal
+    /// lists what it left.
+    fn drop(&mut self) {
+        if self.finished {
+            return;
+        }
+        for name in self.committed.iter().rev() {
+            let _ = std::fs::remove_file(self.dir.join(name));
+        }
+        if self.journal.set_len(0).is_ok() {
+            let _ = std::fs::remove_file(self.dir.join(JOURNAL));
+        }
+        if self.created {
+            // The staging directory goes first (fields drop after this), so look past it.
+            let stage = self.stage.path().to_path_buf();
+            let _ = std::fs::remove_dir_all(&stage);
+            remove_if_only_lock(&self.dir);
+        }
+    }
+}
+
+/// A journal entry must name a plain file inside the directory.
+fn check_name(name: &str) -> Result<()> {
+    let ok = !name.is_empty()
+        && name != "."
+        && name != ".."
+        && !name.contains('/')
+        && !name.contains('\0')
+        && !name.starts_with(".tessera");
+    if ok {
+        Ok(())
+    } else {
+        Err(Error::Internal(format!("bad output file name {name:?}")))
+    }
+}
+
+/// Reads what an earlier run left: its journal, or (outputs of tessera versions before the
+/// journal) the tile list of its summary. `None` when there is nothing.
+fn previous_run(dir: &Path) -> Result<Option<Previous>> {
+    let jpath = dir.join(JOURNAL);
+    match std::fs::read_to_string(&jpath) {
+        Ok(text) => {
+            let mut lines = text.lines();
+            if lines.next().map(|l| l.split('\t').next()) != Some(Some(JOURNAL_HEADER)) {
+                return Err(Error::OutputDir {
+                    path: dir.to_path_buf(),
+                    reason: format!("{JOURNAL} is not a tessera journal; refusing to guess what to remove"),
+                    usage: false,
+                });
+            }
+            let mut p = Previous {
+                source: "journal",
+                ..Default::default()
+            };
+            for l in lines {
+                if let Some(name) = l.strip_prefix("file\t") {
+                    if check_name(name).is_ok() {
+                        p.files.push(name.to_string());
+                    }
+                } else if l == "done" {
+                    p.finished = true;
+                }
+            }
+            let summary = dir.join(SUMMARY).exists();
+            if p.files.is_empty() && !summary {
+                return Ok(None);
+            }
+            if summary && !p.files.iter().any(|f| f == SUMMARY) {
+                // A summary the journal does not list: not this journal's run.
+                return Err(Error::OutputDir {
+                    path: dir.to_path_buf(),
+                    reason: format!("{SUMMARY} is not listed in {JOURNAL}; refusing to guess which files are tessera's"),
+                    usage: false,
+                });
+            }
+            Ok(Some(p))
+        }
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            let spath = dir.join(SUMMARY);
+            let text = match std::fs::read_to_string(&spath) {
+                Ok(t) => t,
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+                Err(e) => return Err(Error::io(&spath, e)),
+            };
+            let files = summary_files(&text).ok_or_else(|| Error::OutputDir {
+                path: dir.to_path_buf(),
+                reason: format!("{SUMMARY} is not a tessera run summary; refusing to touch it"),
+                usage: false,
+            })?;
+            Ok(Some(Previous {
+                files,
+                finished: true,
+                source: "summary.json",
+            }))
+        }
+        Err(e) => Err(Error::io(&jpath, e)),
+    }
+}
+
+/// The files a summary of a journal-less run names: its tiles, their segment tables, itself.
+fn summary_files(text: &str) -> Option<Vec<String>> {
+    let v: serde_json::Value = serde_json::from_str(text).ok()?;
+    let tiles = v.get("tile_list")?.as_array()?;
+    let mut files = Vec::new();
+    for t in tiles {
+        let file = t.get("file")?.as_str()?;
+        files.push(file.to_string());
+        let name = t.get("name")?.as_str()?;
+        files.push(format!("{name}.segments.tsv"));
+    }
+    files.push(SUMMARY.to_string());
+    files.retain(|f| check_name(f).is_ok());
+    Some(files)
+}
+
+/// Removes an earlier run's files: the summary first (so no summary ever describes files that
+/// are gone), then the rest. Only regular files named by the record; missing ones are fine
+/// (an interrupted `--overwrite` is simply repeated).
+fn remove_previous(dir: &Path, prev: &Previous) -> Result<()> {
+    let order = std::iter::once(SUMMARY).chain(
+        prev.files
+            .iter()
+            .map(|s| s.as_str())
+            .filter(|f| *f != SUMMARY),
+    );
+    let mut removed = 0usize;
+    for name in order {
+        if name == SUMMARY && !prev.files.iter().any(|f| f == SUMMARY) {
+            continue;
+        }
+        let p = dir.join(name);
+        match std::fs::symlink_metadata(&p) {
+            Ok(m) if m.is_file() => {
+                std::fs::remove_file(&p).map_err(|e| Error::io(&p, e))?;
+                removed += 1;
+            }
+            Ok(_) => tracing::warn!(
+                "{} is not a regular file; left in place although the earlier run recorded it",
+                p.display()
+            ),
+            Err(_) => {}
+        }
+    }
+    tracing::info!(
+        "--overwrite: removed {removed} files of the earlier run in {}",
+        dir.display()
+    );
+    Ok(())
+}
+
+/// Entries of `dir` that are not tessera's own bookkeeping.
+fn foreign_entries(dir: &Path) -> usize {
+    std::fs::read_dir(dir)
+        .map(|rd| {
+            rd.flatten()
+                .filter(|e| !e.file_name().to_string_lossy().starts_with(".tessera"))
+                .count()
+        })
+        .unwrap_or(0)
+}
+
+fn hostname() -> Option<String> {
+    std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .ok()
+        .map(|s| s.trim().to_string())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn stage_file(out: &OutputDir, name: &str, body: &str) -> (PathBuf, String) {
+        let p = out.stage().join(name);
+        std::fs::write(&p, body).unwrap();
+        (p, name.to_string())
+    }
+
+    #[test]
+    fn work_dir_is_unique_and_leaves_its_base_alone() {
+        let base = tempfile::tempdir().unwrap();
+        std::fs::write(base.path().join("user.txt"), "mine").unwrap();
+        let a = WorkDir::create(base.path()).unwrap();
+        let b = WorkDir::create(base.path()).unwrap();
+        assert_ne!(a.path(), b.path());
+        std::fs::write(a.path().join("spill"), "x").unwrap();
+        // A live run's directory survives another run's sweep.
+        sweep_stale(base.path());
+        assert!(a.path().is_dir() && b.path().is_dir());
+        drop(a);
+        drop(b);
+        let left: Vec<_> = std::fs::read_dir(base.path()).unwrap().flatten().collect();
+        assert_eq!(left.len(), 1);
+        assert_eq!(std::fs::read_to_string(base.path().join("user.txt")).unwrap(), "mine");
+    }
+
+    #[test]
+    fn stale_work_dirs_are_swept_but_look_alikes_are_not() {
+        let base = tempfile::tempdir().unwrap();
+        let stale = base.path().join(format!("{WORK_PREFIX}1-2-3"));
+        std::fs::create_dir(&stale).unwrap();
+        std::fs::write(stale.join(WORK_MARKER), "").unwrap();
+        // Same name, no marker: not ours.
+        let look = base.path().join(format!("{WORK_PREFIX}9-9-9"));
+        std::fs::create_dir(&look).unwrap();
+        std::fs::write(look.join("data"), "keep").unwrap();
+        let w = WorkDir::create(base.path()).unwrap();
+        assert!(!stale.exists());
+        assert!(look.join("data").is_file());
+        drop(w);
+    }
+
+    #[test]
+    fn second_run_refuses_and_overwrite_removes_only_recorded_files() {
+        let d = tempfile::tempdir().unwrap();
+        std::fs::write(d.path().join("notes.txt"), "user").unwrap();
+        let mut out = OutputDir::open(d.path(), false).unwrap();
+        let e = OutputDir::open(d.path(), true).unwrap_err().to_string();
+        assert!(e.contains("another tessera run"), "{e}");
+        let f = stage_file(&out, "t1.laz", "tile");
+        out.commit(&[f]).unwrap();
+        out.finish(b"{}").unwrap();
+        // Finished run: refused without overwrite.
+        let e = OutputDir::open(d.path(), false).unwrap_err();
+        assert!(e.to_string().contains("--overwrite"), "{e}");
+        assert!(e.is_usage());
+        let mut out = OutputDir::open(d.path(), true).unwrap();
+        assert!(!d.path().join("t1.laz").exists());
+        assert!(!d.path().join(SUMMARY).exists());
+        assert!(d.path().join("notes.txt").is_file());
+        // Never replaces a file it did not write.
+        let f = stage_file(&out, "notes.txt", "tile");
+        assert!(out.commit(&[f]).is_err());
+        assert_eq!(std::fs::read_to_string(d.path().join("notes.txt")).unwrap(), "user");
+    }
+
+    #[test]
+    fn failed_run_takes_its_partial_outputs_with_it() {
+        let d = tempfile::tempdir().unwrap();
+        let mut out = OutputDir::open(d.path(), false).unwrap();
+        let f = stage_file(&out, "t1.laz", "tile");
+        out.commit(&[f]).unwrap();
+        drop(out);
+        let names: Vec<String> = std::fs::read_dir(d.path())
+            .unwrap()
+            .flatten()
+            .map(|e| e.file_name().to_string_lossy().into_owned())
+            .collect();
+        assert_eq!(names, vec![LOCK_FILE.to_string()]);
+        // And the directory is free again.
+        drop(OutputDir::open(d.path(), false).unwrap());
+        // A directory the failed run created is removed with it.
+        let fresh = d.path().join("new/out");
+        drop(OutputDir::open(&fresh, false).unwrap());
+        assert!(!fresh.exists());
+        assert!(d.path().join("new").is_dir());
+    }
+
+    #[test]
+    fn foreign_summary_is_never_touched() {
+        let d = tempfile::tempdir().unwrap();
+        std::fs::write(d.path().join(SUMMARY), "not ours").unwrap();
+        let e = OutputDir::open(d.path(), true).unwrap_err().to_string();
+        assert!(e.contains("not a tessera run summary"), "{e}");
+        assert_eq!(std::fs::read_to_string(d.path().join(SUMMARY)).unwrap(), "not ours");
+    }
+}

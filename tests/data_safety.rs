@@ -1,0 +1,575 @@
+//! Data safety (issue "Data loss"): tessera deletes only what it created, never drops or
+//! doubles points silently, never mixes two runs' outputs, never scores the wrong pair of
+//! files, and never panics or hangs on what a careful user might hand it.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::time::{Duration, Instant};
+
+fn tessera() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_tessera"))
+}
+
+fn run(args: &[&str], extra: &[&Path]) -> Output {
+    let mut c = tessera();
+    c.arg("-q");
+    for a in args {
+        c.arg(a);
+    }
+    for p in extra {
+        c.arg(p);
+    }
+    c.output().unwrap()
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// A LAS/LAZ file of `n` points on a 30 × 30 m patch at `x0`, version and format as given.
+fn write_points(path: &Path, n: usize, x0: f64, version: (u8, u8), format: u8) {
+    let mut b = las::Builder::from(version);
+    b.point_format = las::point::Format::new(format).unwrap();
+    b.point_format.is_compressed = path.extension().is_some_and(|e| e == "laz");
+    b.transforms = las::Vector {
+        x: las::Transform {
+            scale: 0.001,
+            offset: 0.0,
+        },
+        y: las::Transform {
+            scale: 0.001,
+            offset: 0.0,
+        },
+        z: las::Transform {
+            scale: 0.001,
+            offset: 0.0,
+        },
+    };
+    let mut w = las::Writer::from_path(path, b.into_header().unwrap()).unwrap();
+    let fmt = las::point::Format::new(format).unwrap();
+    for i in 0..n {
+        let v = i as f64;
+        w.write_point(las::Point {
+            x: x0 + (v * 0.618_033_988_7) % 30.0,
+            y: (v * 0.414_213_562_3) % 30.0,
+            z: (v * 0.1) % 3.0,
+            return_number: 1,
+            number_of_returns: 1,
+            gps_time: fmt.has_gps_time.then_some(v),
+            color: fmt.has_color.then_some(las::Color::new(1, 2, 3)),
+            nir: fmt.has_nir.then_some(4),
+            ..Default::default()
+        })
+        .unwrap();
+    }
+    w.close().unwrap();
+}
+
+fn summary(out: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap()
+}
+
+/// Every file under `dir` with its bytes.
+fn snapshot(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
+    let mut v = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap().flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                v.push((p.clone(), std::fs::read(&p).unwrap()));
+            }
+        }
+    }
+    v.sort();
+    v
+}
+
+fn assert_survived(before: &[(PathBuf, Vec<u8>)], what: &str) {
+    for (p, bytes) in before {
+        let now = std::fs::read(p).unwrap_or_else(|e| panic!("{what}: {} is gone: {e}", p.display()));
+        assert!(now == *bytes, "{what}: {} changed", p.display());
+    }
+}
+
+const PASS: &str = "stages.run=[\"stats\"]";
+
+#[test]
+fn spill_dir_never_removes_user_files() {
+    let d = tempfile::tempdir().unwrap();
+    let input = d.path().join("in");
+    std::fs::create_dir(&input).unwrap();
+    write_points(&input.join("a.las"), 20_000, 0.0, (1, 2), 1);
+    let user = d.path().join("user");
+    std::fs::create_dir_all(user.join("sub")).unwrap();
+    std::fs::write(user.join("precious.txt"), "do not delete").unwrap();
+    std::fs::write(user.join("sub/more.bin"), [1u8, 2, 3]).unwrap();
+    let sibling = d.path().join("user-mcap");
+    std::fs::create_dir(&sibling).unwrap();
+    std::fs::write(sibling.join("keep.txt"), "sibling").unwrap();
+    let out = d.path().join("out");
+    std::fs::create_dir(&out).unwrap();
+    std::fs::write(out.join("notes.txt"), "user's notes in the output directory").unwrap();
+
+    for (i, spill) in [&user, &input, &out].into_iter().enumerate() {
+        let mut before = snapshot(&user);
+        before.extend(snapshot(&input));
+        before.extend(snapshot(&sibling));
+        before.push((out.join("notes.txt"), std::fs::read(out.join("notes.txt")).unwrap()));
+        let set = format!("pipeline.spill_dir={:?}", spill.display().to_string());
+        let o = run(
+            &["run", "--overwrite", "--set", PASS, "--set", &set, "--out"],
+            &[&out, &input],
+        );
+        assert!(o.status.success(), "spill dir {}: {}", spill.display(), stderr(&o));
+        assert_eq!(summary(&out)["points_in"], 20_000, "run {i}");
+        assert_survived(&before, &format!("spill_dir = {}", spill.display()));
+        // Nothing of the run's own is left in the spill location.
+        let left: Vec<_> = std::fs::read_dir(spill)
+            .unwrap()
+            .flatten()
+            .filter(|e| e.file_name().to_string_lossy().starts_with(".tessera-work"))
+            .collect();
+        assert!(left.is_empty(), "work directory left in {}", spill.display());
+    }
+}
+
+#[test]
+fn las14_disagreeing_point_counts_lose_no_points() {
+    let d = tempfile::tempdir().unwrap();
+    for (ext, legacy) in [("las", 10u32), ("laz", 10), ("las", 5000), ("laz", 5000)] {
+        let f = d.path().join(format!("c{legacy}.{ext}"));
+        write_points(&f, 1000, 0.0, (1, 4), 6);
+        let mut b = std::fs::read(&f).unwrap();
+        // The legacy 32-bit count (offset 107); the 64-bit count at 247 keeps 1000, as laspy
+        // reads it.
+        assert_eq!(u64::from_le_bytes(b[247..255].try_into().unwrap()), 1000);
+        b[107..111].copy_from_slice(&legacy.to_le_bytes());
+        std::fs::write(&f, &b).unwrap();
+        let out = d.path().join(format!("out-{legacy}-{ext}"));
+        let o = tessera()
+            .args(["run", "--set", PASS, "--out"])
+            .arg(&out)
+            .arg(&f)
+            .output()
+            .unwrap();
+        let err = stderr(&o);
+        assert!(o.status.success(), "{err}");
+        let s = summary(&out);
+        assert_eq!(s["points_in"], 1000, "{ext} legacy {legacy}");
+        assert_eq!(s["points_out"], 1000, "{ext} legacy {legacy}");
+        assert!(
+            err.contains("disagree") && err.contains(&f.file_name().unwrap().to_string_lossy().to_string()),
+            "a warning names the file and the counts: {err}"
+        );
+    }
+    // Neither count matches the data: an error, not a silent partial read.
+    let f = d.path().join("both-wrong.las");
+    write_points(&f, 1000, 0.0, (1, 4), 6);
+    let mut b = std::fs::read(&f).unwrap();
+    b[107..111].copy_from_slice(&10u32.to_le_bytes());
+    b[247..255].copy_from_slice(&5000u64.to_le_bytes());
+    std::fs::write(&f, &b).unwrap();
+    let o = run(&["run", "--set", PASS, "--out"], &[&d.path().join("o2"), &f]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(stderr(&o).contains("both-wrong.las"), "{}", stderr(&o));
+}
+
+#[test]
+fn output_inside_input_is_never_read_and_duplicates_are_read_once() {
+    let d = tempfile::tempdir().unwrap();
+    let input = d.path().join("in");
+    std::fs::create_dir(&input).unwrap();
+    write_points(&input.join("a.laz"), 12_960, 0.0, (1, 2), 1);
+    let out = input.join("out");
+    for i in 0..3 {
+        let o = run(&["run", "--overwrite", "--set", PASS, "--out"], &[&out, &input]);
+        assert!(o.status.success(), "run {i}: {}", stderr(&o));
+        assert_eq!(summary(&out)["points_in"], 12_960, "run {i}");
+    }
+    // An earlier run's output directory elsewhere under the input is skipped too.
+    let out2 = d.path().join("out2");
+    let o = run(&["run", "--set", PASS, "--out"], &[&out2, &input]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(summary(&out2)["points_in"], 12_960);
+    // The same file under two spellings: read once.
+    let out3 = d.path().join("out3");
+    let a = input.join("a.laz");
+    let b = input.join("./../in/a.laz");
+    let o = run(&["run", "--set", PASS, "--out"], &[&out3, &a, &b]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(summary(&out3)["points_in"], 12_960);
+    // A byte-identical copy under another name: refused, naming both.
+    std::fs::copy(&a, input.join("copy.laz")).unwrap();
+    let o = run(&["run", "--set", PASS, "--out"], &[&d.path().join("out4"), &input]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("copy.laz") && stderr(&o).contains("identical"), "{}", stderr(&o));
+}
+
+#[test]
+fn reruns_never_mix_outputs_and_concurrent_runs_refuse() {
+    let d = tempfile::tempdir().unwrap();
+    let f = d.path().join("a.las");
+    write_points(&f, 30_000, 0.0, (1, 2), 1);
+    let out = d.path().join("out");
+    let o = run(&["run", "--set", PASS, "--set", "tiling.tile_size_m=10", "--set", "tiling.buffer_m=0", "--out"], &[&out, &f]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let first = common::tiles_in(&out).len();
+    assert!(first >= 9, "{first} tiles");
+    std::fs::write(out.join("mine.txt"), "user file").unwrap();
+    // Other settings into the finished directory: refused (usage error), nothing changed.
+    // (The lock file only names its latest holder.)
+    let files = |dir: &Path| -> Vec<(PathBuf, Vec<u8>)> {
+        snapshot(dir)
+            .into_iter()
+            .filter(|(p, _)| !p.ends_with(".tessera.lock"))
+            .collect()
+    };
+    let before = files(&out);
+    let o = run(&["run", "--set", PASS, "--set", "tiling.tile_size_m=25", "--set", "tiling.buffer_m=0", "--out"], &[&out, &f]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("--overwrite"), "{}", stderr(&o));
+    assert!(files(&out) == before, "a refused run changed the output directory");
+    // With --overwrite: exactly the new run's tiles, and the summary lists the files present.
+    let o = run(
+        &["run", "--overwrite", "--set", PASS, "--set", "tiling.tile_size_m=25", "--set", "tiling.buffer_m=0", "--out"],
+        &[&out, &f],
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let tiles: Vec<String> = common::tiles_in(&out)
+        .iter()
+        .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
+        .collect();
+    let s = summary(&out);
+    let mut listed: Vec<String> = s["tile_list"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| t["file"].as_str().unwrap().to_string())
+        .collect();
+    listed.sort();
+    assert_eq!(tiles, listed);
+    assert!(tiles.len() < first);
+    assert_eq!(std::fs::read_to_string(out.join("mine.txt")).unwrap(), "user file");
+    // A concurrent run holds the directory: the second refuses at once.
+    let lock = std::fs::OpenOptions::new()
+        .write(true)
+        .open(out.join(".tessera.lock"))
+        .unwrap();
+    lock.lock().unwrap();
+    let o = run(&["run", "--overwrite", "--set", PASS, "--out"], &[&out, &f]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(stderr(&o).contains("another tessera run"), "{}", stderr(&o));
+    drop(lock);
+    // Two real runs at once: the second refuses while the first completes.
+    let big = d.path().join("big.laz");
+    write_points(&big, 2_000_000, 0.0, (1, 2), 1);
+    let out2 = d.path().join("out2");
+    let mut first = tessera()
+        .args(["-q", "run", "--set", PASS, "--out"])
+        .arg(&out2)
+        .arg(&big)
+        .spawn()
+        .unwrap();
+    let t = Instant::now();
+    while !out2.join(".tessera-journal").exists() && t.elapsed() < Duration::from_secs(30) {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let o = run(&["run", "--overwrite", "--set", PASS, "--out"], &[&out2, &big]);
+    let st = first.wait().unwrap();
+    assert!(st.success());
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert_eq!(summary(&out2)["points_out"], 2_000_000);
+}
+
+#[test]
+fn eval_refuses_a_mismatched_pair() {
+    let d = tempfile::tempdir().unwrap();
+    let a = d.path().join("ref.las");
+    let b = d.path().join("other.las");
+    write_points(&a, 5000, 0.0, (1, 2), 1);
+    write_points(&b, 5000, 1000.0, (1, 2), 1);
+    for p in ["0.001", "0.01", "1", "1e9"] {
+        for allow in [false, true] {
+            let mut args = vec!["eval", "ground", "--match-precision-m", p];
+            if allow {
+                args.push("--allow-unmatched");
+            }
+            args.extend(["--reference", a.to_str().unwrap(), "--result", b.to_str().unwrap()]);
+            let o = run(&args, &[]);
+            assert_eq!(o.status.code(), Some(1), "precision {p}: {}", stderr(&o));
+            assert!(!stderr(&o).is_empty());
+        }
+    }
+    // Not a distance: a usage error, before anything is read.
+    for p in ["0", "NaN", "inf", "-1"] {
+        let flag = format!("--match-precision-m={p}");
+        let o = run(
+            &["eval", "ground", &flag, "--reference", a.to_str().unwrap(), "--result", b.to_str().unwrap()],
+            &[],
+        );
+        assert_eq!(o.status.code(), Some(2), "precision {p}: {}", stderr(&o));
+        assert!(stderr(&o).contains("match-precision"), "{}", stderr(&o));
+    }
+    // The same file scores (sanity of the check itself).
+    let o = run(
+        &["eval", "ground", "--reference", a.to_str().unwrap(), "--result", a.to_str().unwrap()],
+        &[],
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+}
+
+#[test]
+fn eval_refuses_mismatched_isprs_samples() {
+    let Some(s11) = common::data_file("isprs-filtertest/samp11-utm.laz") else {
+        return;
+    };
+    let s12 = s11.with_file_name("samp12-utm.laz");
+    for p in ["0.001", "0.01", "1", "1e9"] {
+        let o = run(
+            &["eval", "ground", "--allow-unmatched", "--match-precision-m", p, "--reference", s11.to_str().unwrap(), "--result", s12.to_str().unwrap()],
+            &[],
+        );
+        assert_eq!(o.status.code(), Some(1), "precision {p}: {}", stderr(&o));
+    }
+}
+
+fn python_has_laspy() -> bool {
+    common::have_laspy()
+}
+
+#[test]
+fn thin_handles_every_point_format_and_round_trips_through_laspy() {
+    let d = tempfile::tempdir().unwrap();
+    for fmt in [0u8, 1, 2, 3, 6, 7, 8] {
+        let f = d.path().join(format!("f{fmt}.las"));
+        let v = if fmt >= 6 { (1, 4) } else { (1, 2) };
+        write_points(&f, 3000, 0.0, v, fmt);
+        let t = d.path().join(format!("t{fmt}.laz"));
+        let o = run(&["thin", "--spacing", "0.5"], &[&f, &t]);
+        assert!(o.status.success(), "format {fmt}: {}", stderr(&o));
+        let r = las::Reader::from_path(&t).unwrap();
+        assert_eq!(r.header().point_format().to_u8().unwrap(), fmt);
+        assert!(r.header().number_of_points() > 100);
+    }
+    // LAS 1.2 with return number 6 (a LAS 1.2 header counts returns 1–5 only, so the `las`
+    // writer's close fails on it and its drop panicked): written as 1.4, then labelled 1.2.
+    let f = d.path().join("r6.las");
+    let mut b = las::Builder::from((1, 4));
+    b.point_format = las::point::Format::new(1).unwrap();
+    let mut w = las::Writer::from_path(&f, b.into_header().unwrap()).unwrap();
+    for i in 0..100 {
+        w.write_point(las::Point {
+            x: i as f64,
+            return_number: 6,
+            number_of_returns: 7,
+            gps_time: Some(0.0),
+            ..Default::default()
+        })
+        .unwrap();
+    }
+    w.close().unwrap();
+    drop(w);
+    let mut bytes = std::fs::read(&f).unwrap();
+    bytes[25] = 2; // version minor
+    std::fs::write(&f, &bytes).unwrap();
+    assert_eq!(las::Reader::from_path(&f).unwrap().header().version(), las::Version::new(1, 2));
+    let t = d.path().join("r6-thin.las");
+    let o = run(&["thin", "--spacing", "0.5"], &[&f, &t]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r = las::Reader::from_path(&t).unwrap();
+    assert_eq!(r.header().number_of_points(), 100);
+    assert_eq!(r.header().version(), las::Version::new(1, 4));
+    let Some(ign) = common::data_file("ign-lidarhd/870000_6618000.subset.50mx100m.las") else {
+        return;
+    };
+    let t = d.path().join("ign-thin.laz");
+    let o = run(&["thin", "--spacing", "0.2"], &[&ign, &t]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r = las::Reader::from_path(&t).unwrap();
+    assert_eq!(r.header().point_format().to_u8().unwrap(), 8);
+    let n = r.header().number_of_points();
+    assert!(n > 1000);
+    if python_has_laspy() {
+        let py = format!(
+            "import laspy; f = laspy.read({:?}); print(len(f.points), f.header.point_format.id, int(f.nir.max()) >= 0)",
+            t.display().to_string()
+        );
+        let o = Command::new("python3").args(["-c", &py]).output().unwrap();
+        assert!(o.status.success(), "laspy: {}", stderr(&o));
+        assert_eq!(String::from_utf8_lossy(&o.stdout).trim(), format!("{n} 8 True"));
+    } else if std::env::var("CI").as_deref() == Ok("true") {
+        panic!("laspy is needed for the round trip under CI");
+    }
+}
+
+#[test]
+fn fifos_and_devices_are_refused_within_a_second() {
+    let d = tempfile::tempdir().unwrap();
+    let fifo = d.path().join("pipe.las");
+    let ok = Command::new("mkfifo").arg(&fifo).status().map(|s| s.success()).unwrap_or(false);
+    assert!(ok, "mkfifo failed");
+    let good = d.path().join("good.las");
+    write_points(&good, 1000, 0.0, (1, 2), 1);
+    let cases: Vec<Vec<String>> = vec![
+        vec!["run".into(), "--out".into(), d.path().join("o1").display().to_string(), fifo.display().to_string()],
+        // Inside an input directory.
+        vec!["run".into(), "--out".into(), d.path().join("o2").display().to_string(), d.path().display().to_string()],
+        vec![
+            "run".into(),
+            "--config".into(),
+            fifo.display().to_string(),
+            "--out".into(),
+            d.path().join("o3").display().to_string(),
+            good.display().to_string(),
+        ],
+        vec![
+            "run".into(),
+            "--config".into(),
+            "/dev/zero".into(),
+            "--out".into(),
+            d.path().join("o4").display().to_string(),
+            good.display().to_string(),
+        ],
+        vec!["info".into(), fifo.display().to_string()],
+        vec!["thin".into(), "--spacing".into(), "1".into(), fifo.display().to_string(), d.path().join("t.las").display().to_string()],
+    ];
+    for args in cases {
+        let t = Instant::now();
+        let mut child = tessera()
+            .arg("-q")
+            .args(&args)
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        let status = loop {
+            if let Some(s) = child.try_wait().unwrap() {
+                break s;
+            }
+            if t.elapsed() > Duration::from_secs(10) {
+                let _ = child.kill();
+                panic!("{args:?} hangs");
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        };
+        let mut err = String::new();
+        std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut err).unwrap();
+        assert!(t.elapsed() < Duration::from_secs(1), "{args:?} took {:?}", t.elapsed());
+        assert!(!status.success(), "{args:?}");
+        assert_ne!(status.code(), Some(101), "{args:?}: {err}");
+        assert!(
+            err.contains("not a regular file") || err.contains("larger than"),
+            "{args:?}: {err}"
+        );
+    }
+}
+
+#[test]
+fn huge_memory_budget_is_refused_not_wrapped() {
+    let d = tempfile::tempdir().unwrap();
+    let f = d.path().join("a.las");
+    write_points(&f, 100, 0.0, (1, 2), 1);
+    let o = run(&["run", "--memory-budget", "17592186044480", "--out"], &[&d.path().join("o"), &f]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("memory_budget_mb"), "{}", stderr(&o));
+}
+
+#[test]
+fn mutated_extra_bytes_are_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let f = d.path().join("eb.las");
+    let mut b = las::Builder::from((1, 4));
+    b.point_format = las::point::Format::new(6).unwrap();
+    b.point_format.extra_bytes = 2;
+    let mut desc = vec![0u8; 192];
+    desc[2] = 3; // u16
+    desc[4..8].copy_from_slice(b"tag1");
+    b.vlrs.push(las::Vlr {
+        user_id: "LASF_Spec".into(),
+        record_id: 4,
+        description: "Extra bytes".into(),
+        data: desc,
+    });
+    let mut w = las::Writer::from_path(&f, b.into_header().unwrap()).unwrap();
+    for i in 0..100 {
+        w.write_point(las::Point {
+            x: i as f64,
+            return_number: 1,
+            number_of_returns: 1,
+            gps_time: Some(0.0),
+            extra_bytes: vec![1, 0],
+            ..Default::default()
+        })
+        .unwrap();
+    }
+    w.close().unwrap();
+    let good = run(&["run", "--set", PASS, "--out"], &[&d.path().join("ok"), &f]);
+    assert!(good.status.success(), "{}", stderr(&good));
+    let bytes = std::fs::read(&f).unwrap();
+    let at = bytes.windows(4).position(|w| w == b"tag1").unwrap() - 4;
+    for (i, (offset, value)) in [(2usize, 31u8), (2, 5), (2, 0), (4, 0)].into_iter().enumerate() {
+        let mut m = bytes.clone();
+        m[at + offset] = value;
+        let p = d.path().join(format!("eb-mut{i}.las"));
+        std::fs::write(&p, &m).unwrap();
+        let o = run(&["run", "--set", PASS, "--out"], &[&d.path().join(format!("o{i}")), &p]);
+        assert_eq!(o.status.code(), Some(1), "mutation {i}: {}", stderr(&o));
+        assert!(stderr(&o).contains("extra-bytes"), "mutation {i}: {}", stderr(&o));
+        assert!(!d.path().join(format!("o{i}")).exists(), "mutation {i}: output left");
+    }
+}
+
+/// A full disk while tiles are written: exit 1, no temporary file, no spill or work
+/// directory, no partial tile set. Needs a small tmpfs (root and mount permission).
+#[test]
+fn full_disk_fails_cleanly() {
+    let d = tempfile::tempdir().unwrap();
+    let mnt = d.path().join("small");
+    std::fs::create_dir(&mnt).unwrap();
+    let mounted = Command::new("mount")
+        .args(["-t", "tmpfs", "-o", "size=3m", "tessera-test", mnt.to_str().unwrap()])
+        .status()
+        .map(|s| s.success())
+        .unwrap_or(false);
+    if !mounted {
+        eprintln!("SKIP: cannot mount a tmpfs here (needs root and mount permission)");
+        return;
+    }
+    struct Unmount(PathBuf);
+    impl Drop for Unmount {
+        fn drop(&mut self) {
+            let _ = Command::new("umount").arg(&self.0).status();
+        }
+    }
+    let _u = Unmount(mnt.clone());
+    let f = d.path().join("a.las");
+    write_points(&f, 400_000, 0.0, (1, 2), 1);
+    // Spill on the full disk too, and spill on a disk with room (so the tile writer is the
+    // one that hits the full disk).
+    let spill = d.path().join("spill");
+    std::fs::create_dir(&spill).unwrap();
+    for spill_set in [None, Some(format!("pipeline.spill_dir={:?}", spill.display().to_string()))] {
+        let out = mnt.join("out");
+        let mut args = vec!["run", "--set", PASS, "--set", "output.format=\"las\"", "--set", "tiling.tile_size_m=10", "--set", "tiling.buffer_m=0"];
+        if let Some(s) = &spill_set {
+            args.extend(["--set", s.as_str()]);
+        }
+        args.push("--out");
+        let o = run(&args, &[&out, &f]);
+        let err = stderr(&o);
+        assert_eq!(o.status.code(), Some(1), "{spill_set:?}: {err}");
+        assert!(err.to_lowercase().contains("no space"), "{err}");
+        let left = snapshot(&mnt);
+        assert!(
+            left.is_empty(),
+            "left on the full disk: {:?}",
+            left.iter().map(|x| &x.0).collect::<Vec<_>>()
+        );
+        assert!(std::fs::read_dir(&mnt).unwrap().next().is_none());
+        assert!(std::fs::read_dir(&spill).unwrap().next().is_none(), "spill left");
+    }
+}
