@@ -12,7 +12,11 @@ W=$(mktemp -d); trap 'rm -rf "$W"' EXIT
 cargo build --release -q
 BIN="${CARGO_TARGET_DIR:-target}/release/tessera"
 
-if [ ! -d "$ISPRS" ]; then echo "SKIP: $ISPRS not found"; exit 0; fi
+if [ ! -d "$ISPRS" ]; then
+  # Under CI the gate must run: missing data fails it.
+  if [ "${CI:-}" = "true" ]; then echo "FAIL: $ISPRS not found (CI=true requires it)"; exit 1; fi
+  echo "SKIP: $ISPRS not found"; exit 0
+fi
 echo "== ISPRS filter test: each sample filtered alone, config/airborne.toml (one parameter set)"
 : > "$W/samples.jsonl"
 for s in 11 12 21 22 23 24 31 41 42 51 52 53 54 61 71; do

@@ -198,10 +198,8 @@ pub fn thin_file(input: &Path, output: &Path, spacing_m: f64) -> crate::Result<T
             )));
         }
     }
-    let layout = crate::model::RecordLayout::new(
-        *file.header.point_format(),
-        *file.header.transforms(),
-    );
+    let layout =
+        crate::model::RecordLayout::new(*file.header.point_format(), *file.header.transforms());
     let laz = output
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("laz"));
@@ -230,20 +228,26 @@ pub fn thin_file(input: &Path, output: &Path, spacing_m: f64) -> crate::Result<T
             .with_transforms(layout.transforms)
             .build();
         let mut out: Vec<u8> = Vec::new();
-        crate::io::input::read_file_chunks(&file, &layout, 1 << 18, || None, |_, data| {
-            out.clear();
-            for rec in data.raw_bytes().chunks_exact(rl) {
-                if thinner.offer(layout.xyz(rec)) {
-                    out.extend_from_slice(rec);
+        crate::io::input::read_file_chunks(
+            &file,
+            &layout,
+            1 << 18,
+            || None,
+            |_, data| {
+                out.clear();
+                for rec in data.raw_bytes().chunks_exact(rl) {
+                    if thinner.offer(layout.xyz(rec)) {
+                        out.extend_from_slice(rec);
+                    }
                 }
-            }
-            if !out.is_empty() {
-                slab.resize_for(out.len() / rl).copy_from_slice(&out);
-                w.write_points(&slab)?;
-                kept += (out.len() / rl) as u64;
-            }
-            Ok(())
-        })?;
+                if !out.is_empty() {
+                    slab.resize_for(out.len() / rl).copy_from_slice(&out);
+                    w.write_points(&slab)?;
+                    kept += (out.len() / rl) as u64;
+                }
+                Ok(())
+            },
+        )?;
         w.finish()?;
         Ok(kept)
     })();

@@ -91,7 +91,8 @@ fn snapshot(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
 
 fn assert_survived(before: &[(PathBuf, Vec<u8>)], what: &str) {
     for (p, bytes) in before {
-        let now = std::fs::read(p).unwrap_or_else(|e| panic!("{what}: {} is gone: {e}", p.display()));
+        let now =
+            std::fs::read(p).unwrap_or_else(|e| panic!("{what}: {} is gone: {e}", p.display()));
         assert!(now == *bytes, "{what}: {} changed", p.display());
     }
 }
@@ -113,19 +114,31 @@ fn spill_dir_never_removes_user_files() {
     std::fs::write(sibling.join("keep.txt"), "sibling").unwrap();
     let out = d.path().join("out");
     std::fs::create_dir(&out).unwrap();
-    std::fs::write(out.join("notes.txt"), "user's notes in the output directory").unwrap();
+    std::fs::write(
+        out.join("notes.txt"),
+        "user's notes in the output directory",
+    )
+    .unwrap();
 
     for (i, spill) in [&user, &input, &out].into_iter().enumerate() {
         let mut before = snapshot(&user);
         before.extend(snapshot(&input));
         before.extend(snapshot(&sibling));
-        before.push((out.join("notes.txt"), std::fs::read(out.join("notes.txt")).unwrap()));
+        before.push((
+            out.join("notes.txt"),
+            std::fs::read(out.join("notes.txt")).unwrap(),
+        ));
         let set = format!("pipeline.spill_dir={:?}", spill.display().to_string());
         let o = run(
             &["run", "--overwrite", "--set", PASS, "--set", &set, "--out"],
             &[&out, &input],
         );
-        assert!(o.status.success(), "spill dir {}: {}", spill.display(), stderr(&o));
+        assert!(
+            o.status.success(),
+            "spill dir {}: {}",
+            spill.display(),
+            stderr(&o)
+        );
         assert_eq!(summary(&out)["points_in"], 20_000, "run {i}");
         assert_survived(&before, &format!("spill_dir = {}", spill.display()));
         // Nothing of the run's own is left in the spill location.
@@ -134,7 +147,11 @@ fn spill_dir_never_removes_user_files() {
             .flatten()
             .filter(|e| e.file_name().to_string_lossy().starts_with(".tessera-work"))
             .collect();
-        assert!(left.is_empty(), "work directory left in {}", spill.display());
+        assert!(
+            left.is_empty(),
+            "work directory left in {}",
+            spill.display()
+        );
     }
 }
 
@@ -163,7 +180,8 @@ fn las14_disagreeing_point_counts_lose_no_points() {
         assert_eq!(s["points_in"], 1000, "{ext} legacy {legacy}");
         assert_eq!(s["points_out"], 1000, "{ext} legacy {legacy}");
         assert!(
-            err.contains("disagree") && err.contains(&f.file_name().unwrap().to_string_lossy().to_string()),
+            err.contains("disagree")
+                && err.contains(&f.file_name().unwrap().to_string_lossy().to_string()),
             "a warning names the file and the counts: {err}"
         );
     }
@@ -174,9 +192,57 @@ fn las14_disagreeing_point_counts_lose_no_points() {
     b[107..111].copy_from_slice(&10u32.to_le_bytes());
     b[247..255].copy_from_slice(&5000u64.to_le_bytes());
     std::fs::write(&f, &b).unwrap();
-    let o = run(&["run", "--set", PASS, "--out"], &[&d.path().join("o2"), &f]);
+    let o = run(
+        &["run", "--set", PASS, "--out"],
+        &[&d.path().join("o2"), &f],
+    );
     assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
     assert!(stderr(&o).contains("both-wrong.las"), "{}", stderr(&o));
+    assert!(
+        !d.path().join("o2").exists(),
+        "a refused input left an output"
+    );
+}
+
+/// The issue's reproduction with an independent writer: laspy writes a LAS 1.4 format 6 file
+/// of 1,000 points (legacy count 0, 64-bit 1,000), the legacy count is set to 10; laspy
+/// itself reads 1,000, and so must tessera.
+#[test]
+fn laspy_las14_with_a_wrong_legacy_count_is_read_whole() {
+    if !common::have_laspy() {
+        assert_ne!(
+            std::env::var("CI").as_deref(),
+            Ok("true"),
+            "laspy is needed for this gate under CI"
+        );
+        eprintln!("SKIP: laspy not installed");
+        return;
+    }
+    let d = tempfile::tempdir().unwrap();
+    let f = d.path().join("laspy14.las");
+    let py = format!(
+        "import laspy, numpy as np, struct\n\
+         h = laspy.LasHeader(point_format=6, version='1.4'); h.scales = [0.001] * 3; h.offsets = [0, 0, 0]\n\
+         a = laspy.LasData(h); n = 1000\n\
+         a.x = np.arange(n) * 0.01; a.y = (np.arange(n) * 7 % 100) * 0.1; a.z = np.zeros(n)\n\
+         a.write({p:?})\n\
+         b = bytearray(open({p:?}, 'rb').read()); struct.pack_into('<I', b, 107, 10)\n\
+         open({p:?}, 'wb').write(b)\n\
+         print(len(laspy.read({p:?}).points))",
+        p = f.display().to_string()
+    );
+    let o = Command::new("python3").args(["-c", &py]).output().unwrap();
+    assert!(o.status.success(), "laspy: {}", stderr(&o));
+    assert_eq!(
+        String::from_utf8_lossy(&o.stdout).trim(),
+        "1000",
+        "laspy's reading"
+    );
+    let out = d.path().join("out");
+    let o = run(&["run", "--set", PASS, "--out"], &[&out, &f]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(summary(&out)["points_in"], 1000);
+    assert_eq!(summary(&out)["points_out"], 1000);
 }
 
 #[test]
@@ -187,7 +253,10 @@ fn output_inside_input_is_never_read_and_duplicates_are_read_once() {
     write_points(&input.join("a.laz"), 12_960, 0.0, (1, 2), 1);
     let out = input.join("out");
     for i in 0..3 {
-        let o = run(&["run", "--overwrite", "--set", PASS, "--out"], &[&out, &input]);
+        let o = run(
+            &["run", "--overwrite", "--set", PASS, "--out"],
+            &[&out, &input],
+        );
         assert!(o.status.success(), "run {i}: {}", stderr(&o));
         assert_eq!(summary(&out)["points_in"], 12_960, "run {i}");
     }
@@ -205,9 +274,16 @@ fn output_inside_input_is_never_read_and_duplicates_are_read_once() {
     assert_eq!(summary(&out3)["points_in"], 12_960);
     // A byte-identical copy under another name: refused, naming both.
     std::fs::copy(&a, input.join("copy.laz")).unwrap();
-    let o = run(&["run", "--set", PASS, "--out"], &[&d.path().join("out4"), &input]);
+    let o = run(
+        &["run", "--set", PASS, "--out"],
+        &[&d.path().join("out4"), &input],
+    );
     assert_eq!(o.status.code(), Some(1));
-    assert!(stderr(&o).contains("copy.laz") && stderr(&o).contains("identical"), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("copy.laz") && stderr(&o).contains("identical"),
+        "{}",
+        stderr(&o)
+    );
 }
 
 #[test]
@@ -216,7 +292,19 @@ fn reruns_never_mix_outputs_and_concurrent_runs_refuse() {
     let f = d.path().join("a.las");
     write_points(&f, 30_000, 0.0, (1, 2), 1);
     let out = d.path().join("out");
-    let o = run(&["run", "--set", PASS, "--set", "tiling.tile_size_m=10", "--set", "tiling.buffer_m=0", "--out"], &[&out, &f]);
+    let o = run(
+        &[
+            "run",
+            "--set",
+            PASS,
+            "--set",
+            "tiling.tile_size_m=10",
+            "--set",
+            "tiling.buffer_m=0",
+            "--out",
+        ],
+        &[&out, &f],
+    );
     assert!(o.status.success(), "{}", stderr(&o));
     let first = common::tiles_in(&out).len();
     assert!(first >= 9, "{first} tiles");
@@ -230,13 +318,38 @@ fn reruns_never_mix_outputs_and_concurrent_runs_refuse() {
             .collect()
     };
     let before = files(&out);
-    let o = run(&["run", "--set", PASS, "--set", "tiling.tile_size_m=25", "--set", "tiling.buffer_m=0", "--out"], &[&out, &f]);
+    let o = run(
+        &[
+            "run",
+            "--set",
+            PASS,
+            "--set",
+            "tiling.tile_size_m=25",
+            "--set",
+            "tiling.buffer_m=0",
+            "--out",
+        ],
+        &[&out, &f],
+    );
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
     assert!(stderr(&o).contains("--overwrite"), "{}", stderr(&o));
-    assert!(files(&out) == before, "a refused run changed the output directory");
+    assert!(
+        files(&out) == before,
+        "a refused run changed the output directory"
+    );
     // With --overwrite: exactly the new run's tiles, and the summary lists the files present.
     let o = run(
-        &["run", "--overwrite", "--set", PASS, "--set", "tiling.tile_size_m=25", "--set", "tiling.buffer_m=0", "--out"],
+        &[
+            "run",
+            "--overwrite",
+            "--set",
+            PASS,
+            "--set",
+            "tiling.tile_size_m=25",
+            "--set",
+            "tiling.buffer_m=0",
+            "--out",
+        ],
         &[&out, &f],
     );
     assert!(o.status.success(), "{}", stderr(&o));
@@ -254,7 +367,10 @@ fn reruns_never_mix_outputs_and_concurrent_runs_refuse() {
     listed.sort();
     assert_eq!(tiles, listed);
     assert!(tiles.len() < first);
-    assert_eq!(std::fs::read_to_string(out.join("mine.txt")).unwrap(), "user file");
+    assert_eq!(
+        std::fs::read_to_string(out.join("mine.txt")).unwrap(),
+        "user file"
+    );
     // A concurrent run holds the directory: the second refuses at once.
     let lock = std::fs::OpenOptions::new()
         .write(true)
@@ -279,7 +395,10 @@ fn reruns_never_mix_outputs_and_concurrent_runs_refuse() {
     while !out2.join(".tessera-journal").exists() && t.elapsed() < Duration::from_secs(30) {
         std::thread::sleep(Duration::from_millis(20));
     }
-    let o = run(&["run", "--overwrite", "--set", PASS, "--out"], &[&out2, &big]);
+    let o = run(
+        &["run", "--overwrite", "--set", PASS, "--out"],
+        &[&out2, &big],
+    );
     let st = first.wait().unwrap();
     assert!(st.success());
     assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
@@ -299,7 +418,12 @@ fn eval_refuses_a_mismatched_pair() {
             if allow {
                 args.push("--allow-unmatched");
             }
-            args.extend(["--reference", a.to_str().unwrap(), "--result", b.to_str().unwrap()]);
+            args.extend([
+                "--reference",
+                a.to_str().unwrap(),
+                "--result",
+                b.to_str().unwrap(),
+            ]);
             let o = run(&args, &[]);
             assert_eq!(o.status.code(), Some(1), "precision {p}: {}", stderr(&o));
             assert!(!stderr(&o).is_empty());
@@ -309,7 +433,15 @@ fn eval_refuses_a_mismatched_pair() {
     for p in ["0", "NaN", "inf", "-1"] {
         let flag = format!("--match-precision-m={p}");
         let o = run(
-            &["eval", "ground", &flag, "--reference", a.to_str().unwrap(), "--result", b.to_str().unwrap()],
+            &[
+                "eval",
+                "ground",
+                &flag,
+                "--reference",
+                a.to_str().unwrap(),
+                "--result",
+                b.to_str().unwrap(),
+            ],
             &[],
         );
         assert_eq!(o.status.code(), Some(2), "precision {p}: {}", stderr(&o));
@@ -317,7 +449,14 @@ fn eval_refuses_a_mismatched_pair() {
     }
     // The same file scores (sanity of the check itself).
     let o = run(
-        &["eval", "ground", "--reference", a.to_str().unwrap(), "--result", a.to_str().unwrap()],
+        &[
+            "eval",
+            "ground",
+            "--reference",
+            a.to_str().unwrap(),
+            "--result",
+            a.to_str().unwrap(),
+        ],
         &[],
     );
     assert!(o.status.success(), "{}", stderr(&o));
@@ -331,7 +470,17 @@ fn eval_refuses_mismatched_isprs_samples() {
     let s12 = s11.with_file_name("samp12-utm.laz");
     for p in ["0.001", "0.01", "1", "1e9"] {
         let o = run(
-            &["eval", "ground", "--allow-unmatched", "--match-precision-m", p, "--reference", s11.to_str().unwrap(), "--result", s12.to_str().unwrap()],
+            &[
+                "eval",
+                "ground",
+                "--allow-unmatched",
+                "--match-precision-m",
+                p,
+                "--reference",
+                s11.to_str().unwrap(),
+                "--result",
+                s12.to_str().unwrap(),
+            ],
             &[],
         );
         assert_eq!(o.status.code(), Some(1), "precision {p}: {}", stderr(&o));
@@ -377,7 +526,10 @@ fn thin_handles_every_point_format_and_round_trips_through_laspy() {
     let mut bytes = std::fs::read(&f).unwrap();
     bytes[25] = 2; // version minor
     std::fs::write(&f, &bytes).unwrap();
-    assert_eq!(las::Reader::from_path(&f).unwrap().header().version(), las::Version::new(1, 2));
+    assert_eq!(
+        las::Reader::from_path(&f).unwrap().header().version(),
+        las::Version::new(1, 2)
+    );
     let t = d.path().join("r6-thin.las");
     let o = run(&["thin", "--spacing", "0.5"], &[&f, &t]);
     assert!(o.status.success(), "{}", stderr(&o));
@@ -401,7 +553,10 @@ fn thin_handles_every_point_format_and_round_trips_through_laspy() {
         );
         let o = Command::new("python3").args(["-c", &py]).output().unwrap();
         assert!(o.status.success(), "laspy: {}", stderr(&o));
-        assert_eq!(String::from_utf8_lossy(&o.stdout).trim(), format!("{n} 8 True"));
+        assert_eq!(
+            String::from_utf8_lossy(&o.stdout).trim(),
+            format!("{n} 8 True")
+        );
     } else if std::env::var("CI").as_deref() == Ok("true") {
         panic!("laspy is needed for the round trip under CI");
     }
@@ -411,14 +566,28 @@ fn thin_handles_every_point_format_and_round_trips_through_laspy() {
 fn fifos_and_devices_are_refused_within_a_second() {
     let d = tempfile::tempdir().unwrap();
     let fifo = d.path().join("pipe.las");
-    let ok = Command::new("mkfifo").arg(&fifo).status().map(|s| s.success()).unwrap_or(false);
+    let ok = Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .map(|s| s.success())
+        .unwrap_or(false);
     assert!(ok, "mkfifo failed");
     let good = d.path().join("good.las");
     write_points(&good, 1000, 0.0, (1, 2), 1);
     let cases: Vec<Vec<String>> = vec![
-        vec!["run".into(), "--out".into(), d.path().join("o1").display().to_string(), fifo.display().to_string()],
+        vec![
+            "run".into(),
+            "--out".into(),
+            d.path().join("o1").display().to_string(),
+            fifo.display().to_string(),
+        ],
         // Inside an input directory.
-        vec!["run".into(), "--out".into(), d.path().join("o2").display().to_string(), d.path().display().to_string()],
+        vec![
+            "run".into(),
+            "--out".into(),
+            d.path().join("o2").display().to_string(),
+            d.path().display().to_string(),
+        ],
         vec![
             "run".into(),
             "--config".into(),
@@ -436,7 +605,13 @@ fn fifos_and_devices_are_refused_within_a_second() {
             good.display().to_string(),
         ],
         vec!["info".into(), fifo.display().to_string()],
-        vec!["thin".into(), "--spacing".into(), "1".into(), fifo.display().to_string(), d.path().join("t.las").display().to_string()],
+        vec![
+            "thin".into(),
+            "--spacing".into(),
+            "1".into(),
+            fifo.display().to_string(),
+            d.path().join("t.las").display().to_string(),
+        ],
     ];
     for args in cases {
         let t = Instant::now();
@@ -458,7 +633,11 @@ fn fifos_and_devices_are_refused_within_a_second() {
         };
         let mut err = String::new();
         std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut err).unwrap();
-        assert!(t.elapsed() < Duration::from_secs(1), "{args:?} took {:?}", t.elapsed());
+        assert!(
+            t.elapsed() < Duration::from_secs(1),
+            "{args:?} took {:?}",
+            t.elapsed()
+        );
         assert!(!status.success(), "{args:?}");
         assert_ne!(status.code(), Some(101), "{args:?}: {err}");
         assert!(
@@ -473,7 +652,10 @@ fn huge_memory_budget_is_refused_not_wrapped() {
     let d = tempfile::tempdir().unwrap();
     let f = d.path().join("a.las");
     write_points(&f, 100, 0.0, (1, 2), 1);
-    let o = run(&["run", "--memory-budget", "17592186044480", "--out"], &[&d.path().join("o"), &f]);
+    let o = run(
+        &["run", "--memory-budget", "17592186044480", "--out"],
+        &[&d.path().join("o"), &f],
+    );
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
     assert!(stderr(&o).contains("memory_budget_mb"), "{}", stderr(&o));
 }
@@ -507,19 +689,35 @@ fn mutated_extra_bytes_are_refused() {
         .unwrap();
     }
     w.close().unwrap();
-    let good = run(&["run", "--set", PASS, "--out"], &[&d.path().join("ok"), &f]);
+    let good = run(
+        &["run", "--set", PASS, "--out"],
+        &[&d.path().join("ok"), &f],
+    );
     assert!(good.status.success(), "{}", stderr(&good));
     let bytes = std::fs::read(&f).unwrap();
     let at = bytes.windows(4).position(|w| w == b"tag1").unwrap() - 4;
-    for (i, (offset, value)) in [(2usize, 31u8), (2, 5), (2, 0), (4, 0)].into_iter().enumerate() {
+    for (i, (offset, value)) in [(2usize, 31u8), (2, 5), (2, 0), (4, 0)]
+        .into_iter()
+        .enumerate()
+    {
         let mut m = bytes.clone();
         m[at + offset] = value;
         let p = d.path().join(format!("eb-mut{i}.las"));
         std::fs::write(&p, &m).unwrap();
-        let o = run(&["run", "--set", PASS, "--out"], &[&d.path().join(format!("o{i}")), &p]);
+        let o = run(
+            &["run", "--set", PASS, "--out"],
+            &[&d.path().join(format!("o{i}")), &p],
+        );
         assert_eq!(o.status.code(), Some(1), "mutation {i}: {}", stderr(&o));
-        assert!(stderr(&o).contains("extra-bytes"), "mutation {i}: {}", stderr(&o));
-        assert!(!d.path().join(format!("o{i}")).exists(), "mutation {i}: output left");
+        assert!(
+            stderr(&o).contains("extra-bytes"),
+            "mutation {i}: {}",
+            stderr(&o)
+        );
+        assert!(
+            !d.path().join(format!("o{i}")).exists(),
+            "mutation {i}: output left"
+        );
     }
 }
 
@@ -531,7 +729,14 @@ fn full_disk_fails_cleanly() {
     let mnt = d.path().join("small");
     std::fs::create_dir(&mnt).unwrap();
     let mounted = Command::new("mount")
-        .args(["-t", "tmpfs", "-o", "size=3m", "tessera-test", mnt.to_str().unwrap()])
+        .args([
+            "-t",
+            "tmpfs",
+            "-o",
+            "size=3m",
+            "tessera-test",
+            mnt.to_str().unwrap(),
+        ])
         .status()
         .map(|s| s.success())
         .unwrap_or(false);
@@ -552,9 +757,25 @@ fn full_disk_fails_cleanly() {
     // one that hits the full disk).
     let spill = d.path().join("spill");
     std::fs::create_dir(&spill).unwrap();
-    for spill_set in [None, Some(format!("pipeline.spill_dir={:?}", spill.display().to_string()))] {
+    for spill_set in [
+        None,
+        Some(format!(
+            "pipeline.spill_dir={:?}",
+            spill.display().to_string()
+        )),
+    ] {
         let out = mnt.join("out");
-        let mut args = vec!["run", "--set", PASS, "--set", "output.format=\"las\"", "--set", "tiling.tile_size_m=10", "--set", "tiling.buffer_m=0"];
+        let mut args = vec![
+            "run",
+            "--set",
+            PASS,
+            "--set",
+            "output.format=\"las\"",
+            "--set",
+            "tiling.tile_size_m=10",
+            "--set",
+            "tiling.buffer_m=0",
+        ];
         if let Some(s) = &spill_set {
             args.extend(["--set", s.as_str()]);
         }
@@ -570,6 +791,116 @@ fn full_disk_fails_cleanly() {
             left.iter().map(|x| &x.0).collect::<Vec<_>>()
         );
         assert!(std::fs::read_dir(&mnt).unwrap().next().is_none());
-        assert!(std::fs::read_dir(&spill).unwrap().next().is_none(), "spill left");
+        assert!(
+            std::fs::read_dir(&spill).unwrap().next().is_none(),
+            "spill left"
+        );
     }
+}
+
+/// A run killed (SIGKILL) while it replaces an earlier run's outputs: the directory never has
+/// a summary describing other tiles than the ones present, the next run refuses without
+/// `--overwrite`, and with it ends with exactly its own tiles.
+#[test]
+fn killed_run_leaves_no_lying_summary() {
+    let d = tempfile::tempdir().unwrap();
+    let f = d.path().join("big.laz");
+    write_points(&f, 1_500_000, 0.0, (1, 2), 1);
+    let out = d.path().join("out");
+    let small = [
+        "--set",
+        PASS,
+        "--set",
+        "tiling.tile_size_m=5",
+        "--set",
+        "tiling.buffer_m=0",
+    ];
+    let mut args = vec!["run"];
+    args.extend(small);
+    args.push("--out");
+    let o = run(&args, &[&out, &f]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let mut child = tessera()
+        .args([
+            "-q",
+            "run",
+            "--overwrite",
+            "--set",
+            PASS,
+            "--set",
+            "tiling.tile_size_m=10",
+            "--set",
+            "tiling.buffer_m=0",
+            "--out",
+        ])
+        .arg(&out)
+        .arg(&f)
+        .spawn()
+        .unwrap();
+    // Kill it once it has committed some of its own tiles.
+    let t = Instant::now();
+    loop {
+        let j = std::fs::read_to_string(out.join(".tessera-journal")).unwrap_or_default();
+        if j.lines().filter(|l| l.starts_with("file\t")).count() >= 3 && !j.contains("summary.json")
+        {
+            break;
+        }
+        if t.elapsed() > Duration::from_secs(60) || child.try_wait().unwrap().is_some() {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    let _ = child.kill();
+    let _ = child.wait();
+    let consistent = |out: &Path| {
+        if !out.join("summary.json").exists() {
+            return true;
+        }
+        let s = summary(out);
+        let mut listed: Vec<String> = s["tile_list"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|t| t["file"].as_str().unwrap().to_string())
+            .collect();
+        listed.sort();
+        let tiles: Vec<String> = common::tiles_in(out)
+            .iter()
+            .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
+            .collect();
+        tiles == listed
+    };
+    assert!(
+        consistent(&out),
+        "the summary describes other tiles than the ones present"
+    );
+    if !out.join("summary.json").exists() {
+        let o = run(&["run", "--set", PASS, "--out"], &[&out, &f]);
+        assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+        assert!(stderr(&o).contains("did not finish"), "{}", stderr(&o));
+    }
+    let o = run(
+        &[
+            "run",
+            "--overwrite",
+            "--set",
+            PASS,
+            "--set",
+            "tiling.tile_size_m=10",
+            "--set",
+            "tiling.buffer_m=0",
+            "--out",
+        ],
+        &[&out, &f],
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(consistent(&out));
+    assert_eq!(summary(&out)["points_out"], 1_500_000);
+    // No work directory of the killed run survives the next one.
+    let left: Vec<_> = std::fs::read_dir(&out)
+        .unwrap()
+        .flatten()
+        .filter(|e| e.file_name().to_string_lossy().starts_with(".tessera-work"))
+        .collect();
+    assert!(left.is_empty());
 }

@@ -242,26 +242,30 @@ pub fn load_fields(path: &Path, precision_m: f64, fields: &[&str]) -> Result<Fie
             .iter()
             .map(|n| field_source(f, &file.header, n))
             .collect::<Result<_>>()?;
-        let layout = crate::model::RecordLayout::new(
-            *file.header.point_format(),
-            *file.header.transforms(),
-        );
-        crate::io::input::read_file_chunks(&file, &layout, 1 << 18, || None, |_, pd| {
-            for p in pd.points() {
-                let p = p.map_err(|e| Error::las(f, e))?;
-                out.keys.push([
-                    (p.x / precision_m).round() as i64,
-                    (p.y / precision_m).round() as i64,
-                    (p.z / precision_m).round() as i64,
-                ]);
-                out.xyz.push([p.x, p.y, p.z]);
-                out.file.push(fi as u32);
-                for (col, s) in out.values.iter_mut().zip(&src) {
-                    col.push(field_value(f, &p, *s)?);
+        let layout =
+            crate::model::RecordLayout::new(*file.header.point_format(), *file.header.transforms());
+        crate::io::input::read_file_chunks(
+            &file,
+            &layout,
+            1 << 18,
+            || None,
+            |_, pd| {
+                for p in pd.points() {
+                    let p = p.map_err(|e| Error::las(f, e))?;
+                    out.keys.push([
+                        (p.x / precision_m).round() as i64,
+                        (p.y / precision_m).round() as i64,
+                        (p.z / precision_m).round() as i64,
+                    ]);
+                    out.xyz.push([p.x, p.y, p.z]);
+                    out.file.push(fi as u32);
+                    for (col, s) in out.values.iter_mut().zip(&src) {
+                        col.push(field_value(f, &p, *s)?);
+                    }
                 }
-            }
-            Ok(())
-        })?;
+                Ok(())
+            },
+        )?;
     }
     check_resolution(path, precision_m, &out.keys, &out.xyz)?;
     Ok(out)
@@ -270,7 +274,12 @@ pub fn load_fields(path: &Path, precision_m: f64, fields: &[&str]) -> Result<Fie
 /// Fails when the precision merges distinct points: more than [`MAX_MERGED_FRACTION`] of the
 /// points round to the same key as a point with other coordinates. Then matching by key would
 /// pair different points (a precision of 1e9 m made every point match every other).
-fn check_resolution(path: &Path, precision_m: f64, keys: &[[i64; 3]], xyz: &[[f64; 3]]) -> Result<()> {
+fn check_resolution(
+    path: &Path,
+    precision_m: f64,
+    keys: &[[i64; 3]],
+    xyz: &[[f64; 3]],
+) -> Result<()> {
     let mut order: Vec<u32> = (0..keys.len() as u32).collect();
     order.sort_unstable_by_key(|&i| keys[i as usize]);
     let mut merged = 0usize;

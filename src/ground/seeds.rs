@@ -525,7 +525,7 @@ pub(super) fn lowest_per_cell(
 ///
 /// `count` is the cell's number of points, of which only the lowest `held` are known
 /// (`z(j)`, ascending, j < `held`). None when those do not decide it (a choice at or beyond
-/// `held - support` is possible). The one rule for [`lowest_per_cell`] (all points held) and
+/// `held - support` is possible). The one rule for `lowest_per_cell` (all points held) and
 /// for the far-buffer thinning of split tiles (`tiling::FarThin`), which keeps exactly the
 /// point this picks.
 pub fn cell_representative(

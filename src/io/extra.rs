@@ -82,7 +82,7 @@ pub fn fields(vlr_data: &[u8]) -> Vec<ExtraField> {
 /// Measured with laspy 2.7: unknown types, a zero size, duplicate names and oversized
 /// descriptors make its reader raise, empty names make the field unreadable.
 pub fn validate(vlr_data: &[u8], extra_bytes: u16) -> Result<Vec<ExtraField>, String> {
-    if vlr_data.len() % DESCRIPTOR_LEN != 0 {
+    if !vlr_data.len().is_multiple_of(DESCRIPTOR_LEN) {
         return Err(format!(
             "the extra-bytes VLR is {} bytes, not a whole number of {DESCRIPTOR_LEN}-byte descriptors",
             vlr_data.len()
@@ -122,12 +122,19 @@ mod tests {
         let mut ok = descriptor(3, "a", "");
         ok.extend(descriptor(10, "b", ""));
         assert_eq!(validate(&ok, 10).unwrap().len(), 2);
-        assert!(validate(&ok, 12).is_ok(), "undocumented trailing bytes are allowed");
+        assert!(
+            validate(&ok, 12).is_ok(),
+            "undocumented trailing bytes are allowed"
+        );
         assert!(validate(&ok, 9).unwrap_err().contains("cover 10 bytes"));
-        assert!(validate(&ok[..300], 10).unwrap_err().contains("whole number"));
+        assert!(validate(&ok[..300], 10)
+            .unwrap_err()
+            .contains("whole number"));
         let mut t = ok.clone();
         t[2] = 31;
-        assert!(validate(&t, 10).unwrap_err().contains("unknown data type 31"));
+        assert!(validate(&t, 10)
+            .unwrap_err()
+            .contains("unknown data type 31"));
         t[2] = 0;
         assert!(validate(&t, 10).unwrap_err().contains("size of 0"));
         let mut dup = descriptor(3, "a", "");

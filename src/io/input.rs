@@ -115,7 +115,9 @@ pub fn expand_paths_excluding(inputs: &[PathBuf], exclude: &[PathBuf]) -> Result
         }
     }
     if skipped_excluded > 0 {
-        tracing::info!("{skipped_excluded} entries inside the output directory were not read as input");
+        tracing::info!(
+            "{skipped_excluded} entries inside the output directory were not read as input"
+        );
     }
     found.sort_by(|a, b| a.1.cmp(&b.1));
     let mut seen: std::collections::HashMap<PathBuf, PathBuf> = std::collections::HashMap::new();
@@ -288,9 +290,11 @@ fn point_count(path: &Path, raw: &las::raw::Header, present: Present) -> Result<
     let fits = |n: u64| n <= hi && n >= lo;
     let describe = || {
         if lo == hi {
-            format!("the point data holds {lo}")
+            format!("the point data holds {lo} points")
+        } else if lo == 0 {
+            format!("the point data has room for at most {hi} points")
         } else {
-            format!("the point data holds {lo}..={hi}")
+            format!("the point data holds between {lo} and {hi} points")
         }
     };
     let Some(large) = raw.large_file else {
@@ -369,8 +373,7 @@ pub fn scan_file(path: &Path, index: usize) -> Result<InputFile> {
     let points = point_count(path, &raw, present)?;
     let b = header.bounds();
     let vals = [b.min.x, b.min.y, b.min.z, b.max.x, b.max.y, b.max.z];
-    if points > 0
-        && (vals.iter().any(|v| !v.is_finite()) || b.min.x > b.max.x || b.min.y > b.max.y)
+    if points > 0 && (vals.iter().any(|v| !v.is_finite()) || b.min.x > b.max.x || b.min.y > b.max.y)
     {
         return Err(Error::bad_input(
             path,
@@ -513,49 +516,53 @@ pub fn scan_inputs(inputs: &[PathBuf], point_format: Option<u8>) -> Result<Input
     })
 }
 
-/// Refuses two inputs that are copies of one file (same size, same header bytes, same first
-/// and last 64 KiB): their points would be counted twice. Different paths to the *same* file
-/// were already merged by [`expand_paths_excluding`].
+/// Refuses two inputs that are copies of one file (same size, same first and last 64 KiB —
+/// header, VLRs and the first and last records): their points would be counted twice.
+/// Different paths to the *same* file were already merged by [`expand_paths_excluding`].
+/// Only files whose size and first 4 KiB collide are sampled further, so a run over 10,000
+/// inputs reads 4 KiB of each.
 fn refuse_copies(files: &[InputFile]) -> Result<()> {
     use std::hash::{Hash, Hasher};
-    // Keyed by a hash of the sample, not the sample, so 10,000 inputs cost kilobytes; a hash
-    // match is confirmed byte for byte.
-    let mut by_key: std::collections::HashMap<(u64, u64), &InputFile> = Default::default();
+    let mut by_key: std::collections::HashMap<(u64, u64), Vec<&InputFile>> = Default::default();
     for f in files {
         let len = std::fs::metadata(&f.path)
             .map_err(|e| Error::io(&f.path, e))?
             .len();
-        let sample = content_sample(&f.path, len)?;
+        let head = content_sample(&f.path, len, 4 << 10)?;
         let mut h = std::collections::hash_map::DefaultHasher::new();
-        sample.hash(&mut h);
-        if let Some(first) = by_key.insert((len, h.finish()), f) {
-            if content_sample(&first.path, len)? == sample {
-                return Err(Error::bad_input(
-                    &f.path,
-                    format!(
-                        "identical to {} (same size, header and data samples): a copy of one file would be read twice; pass only one of them",
-                        first.path.display()
-                    ),
-                ));
+        head.hash(&mut h);
+        let same = by_key.entry((len, h.finish())).or_default();
+        if !same.is_empty() {
+            let sample = content_sample(&f.path, len, 64 << 10)?;
+            for first in same.iter() {
+                if content_sample(&first.path, len, 64 << 10)? == sample {
+                    return Err(Error::bad_input(
+                        &f.path,
+                        format!(
+                            "identical to {} (same size, header and data samples): a copy of one file would be read twice; pass only one of them",
+                            first.path.display()
+                        ),
+                    ));
+                }
             }
         }
+        same.push(f);
     }
     Ok(())
 }
 
-/// The first 64 KiB (the header and VLRs, and the first records) and the last 64 KiB of a file.
-fn content_sample(path: &Path, len: u64) -> Result<Vec<u8>> {
-    const PART: u64 = 64 << 10;
+/// The first and the last `part` bytes of a file.
+fn content_sample(path: &Path, len: u64, part: u64) -> Result<Vec<u8>> {
     let mut f = crate::io::files::open_regular(path)?;
-    let mut out = Vec::with_capacity(2 * PART as usize);
+    let mut out = Vec::with_capacity(2 * part as usize);
     (&mut f)
-        .take(PART)
+        .take(part)
         .read_to_end(&mut out)
         .map_err(|e| Error::io(path, e))?;
-    if len > PART {
-        f.seek(SeekFrom::Start(len.saturating_sub(PART).max(PART)))
+    if len > part {
+        f.seek(SeekFrom::Start(len.saturating_sub(part).max(part)))
             .map_err(|e| Error::io(path, e))?;
-        f.take(PART)
+        f.take(part)
             .read_to_end(&mut out)
             .map_err(|e| Error::io(path, e))?;
     }
@@ -682,9 +689,8 @@ impl RecordSource {
             return Ok(RecordSource::Las(f));
         }
         let vlr = file.header.laz_vlr().map_err(|e| Error::las(path, e))?;
-        let d = laz::LasZipDecompressor::new(f, vlr).map_err(|e| {
-            Error::bad_input(path, format!("cannot start LAZ decompression: {e}"))
-        })?;
+        let d = laz::LasZipDecompressor::new(f, vlr)
+            .map_err(|e| Error::bad_input(path, format!("cannot start LAZ decompression: {e}")))?;
         Ok(RecordSource::Laz(Box::new(d)))
     }
 

@@ -114,9 +114,9 @@ impl LasFile {
     }
 
     fn writer(&mut self) -> Result<&mut Writer<BufWriter<SharedFile>>> {
-        self.writer
-            .as_mut()
-            .ok_or_else(|| Error::Internal(format!("{}: writer already closed", self.path.display())))
+        self.writer.as_mut().ok_or_else(|| {
+            Error::Internal(format!("{}: writer already closed", self.path.display()))
+        })
     }
 
     /// Writes pre-encoded records (the writer's point format).

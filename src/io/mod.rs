@@ -3,12 +3,12 @@
 
 pub mod extra;
 pub mod files;
-pub mod laswrite;
 pub mod input;
+pub mod laswrite;
 pub mod mcap;
 pub mod output;
-pub mod workspace;
 pub mod pcd;
+pub mod workspace;
 
 pub use input::{scan_inputs, InputFile, InputSet};
 pub use output::{write_atomic, PendingTile, TileWriter};

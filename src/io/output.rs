@@ -3,9 +3,9 @@
 
 use crate::error::{Error, Result};
 use crate::io::extra;
-use crate::model::RecordLayout;
 use crate::io::laswrite::LasFile;
 use crate::io::workspace::OutputDir;
+use crate::model::RecordLayout;
 use las::{Builder, PointDataBuilder, Version};
 use std::fs::File;
 use std::io::Write;

@@ -274,10 +274,11 @@ pub fn read_pcd(path: &Path) -> Result<PcdCloud, PcdError> {
         .and_then(|mut f| {
             let mut b = Vec::new();
             std::io::Read::read_to_end(&mut f, &mut b).map(|_| b)
-        }).map_err(|source| PcdError::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
+        })
+        .map_err(|source| PcdError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
     parse_pcd(&bytes).map_err(|e| PcdError::InFile {
         path: path.to_path_buf(),
         source: Box::new(e),

@@ -332,7 +332,8 @@ impl OutputDir {
                     usage: false,
                 });
             }
-            writeln!(self.journal, "file\t{name}").map_err(|e| Error::io(self.dir.join(JOURNAL), e))?;
+            writeln!(self.journal, "file\t{name}")
+                .map_err(|e| Error::io(self.dir.join(JOURNAL), e))?;
             self.committed.push(name.clone());
             std::fs::rename(staged, &target).map_err(|e| Error::io(&target, e))?;
         }
@@ -403,7 +404,9 @@ fn previous_run(dir: &Path) -> Result<Option<Previous>> {
             if lines.next().map(|l| l.split('\t').next()) != Some(Some(JOURNAL_HEADER)) {
                 return Err(Error::OutputDir {
                     path: dir.to_path_buf(),
-                    reason: format!("{JOURNAL} is not a tessera journal; refusing to guess what to remove"),
+                    reason: format!(
+                        "{JOURNAL} is not a tessera journal; refusing to guess what to remove"
+                    ),
                     usage: false,
                 });
             }
@@ -549,7 +552,10 @@ mod tests {
         drop(b);
         let left: Vec<_> = std::fs::read_dir(base.path()).unwrap().flatten().collect();
         assert_eq!(left.len(), 1);
-        assert_eq!(std::fs::read_to_string(base.path().join("user.txt")).unwrap(), "mine");
+        assert_eq!(
+            std::fs::read_to_string(base.path().join("user.txt")).unwrap(),
+            "mine"
+        );
     }
 
     #[test]
@@ -589,7 +595,10 @@ mod tests {
         // Never replaces a file it did not write.
         let f = stage_file(&out, "notes.txt", "tile");
         assert!(out.commit(&[f]).is_err());
-        assert_eq!(std::fs::read_to_string(d.path().join("notes.txt")).unwrap(), "user");
+        assert_eq!(
+            std::fs::read_to_string(d.path().join("notes.txt")).unwrap(),
+            "user"
+        );
     }
 
     #[test]
@@ -620,6 +629,9 @@ mod tests {
         std::fs::write(d.path().join(SUMMARY), "not ours").unwrap();
         let e = OutputDir::open(d.path(), true).unwrap_err().to_string();
         assert!(e.contains("not a tessera run summary"), "{e}");
-        assert_eq!(std::fs::read_to_string(d.path().join(SUMMARY)).unwrap(), "not ours");
+        assert_eq!(
+            std::fs::read_to_string(d.path().join(SUMMARY)).unwrap(),
+            "not ours"
+        );
     }
 }

@@ -179,7 +179,7 @@ pub struct Return {
     pub intensity: f32,
     /// Colour (as a camera-colourised scanner would give it).
     pub rgb: [u8; 3],
-    /// Truth class, see [`truth`].
+    /// Truth class, see [`crate::synth::scene::truth`].
     pub class: u8,
     /// Truth segment id (as in the scene's `segments.tsv`).
     pub segment: u32,

@@ -13,9 +13,9 @@ pub mod scene;
 pub use scene::{generate_slab, segments, Blocks, SceneParams, SegmentTruth, SynthPoint};
 
 use crate::error::{Error, Result};
+use crate::io::laswrite::LasFile;
 use crate::io::output::{tmp_path, write_atomic};
 use las::point::Format;
-use crate::io::laswrite::LasFile;
 use las::{Builder, Point, Transform, Vector, Version, Vlr};
 use rayon::prelude::*;
 use std::path::Path;

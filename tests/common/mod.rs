@@ -33,7 +33,10 @@ pub fn data_file(rel: &str) -> Option<PathBuf> {
     if p.is_file() {
         Some(p)
     } else if std::env::var("CI").as_deref() == Ok("true") {
-        panic!("{} not found; CI=true requires the shared data", p.display());
+        panic!(
+            "{} not found; CI=true requires the shared data",
+            p.display()
+        );
     } else {
         eprintln!("SKIP: {} not found", p.display());
         None

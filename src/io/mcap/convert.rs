@@ -399,4 +399,3 @@ pub fn stage_inputs(
     }
     Ok(staged)
 }
-

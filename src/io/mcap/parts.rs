@@ -6,8 +6,8 @@ use super::fields::CloudSchema;
 use super::place::Placed;
 use super::McapParams;
 use crate::error::{Error, Result};
-use las::point::Format;
 use crate::io::laswrite::LasFile;
+use las::point::Format;
 use las::{Builder, PointDataBuilder, Transform, Vector, Version, Vlr};
 use std::path::{Path, PathBuf};
 

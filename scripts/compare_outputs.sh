@@ -1,0 +1,50 @@
+#!/usr/bin/env bash
+# Behaviour check between two versions: builds an earlier commit (a git worktree with its own
+# target directory) and the working tree, runs both binaries on the same inputs with fresh
+# output directories, and compares every output tile and segment table byte for byte.
+#
+# Usage: scripts/compare_outputs.sh OLD_COMMIT [WORKDIR]
+# Inputs: the demo street scene (default pipeline), a simulated MCAP drive (default pipeline),
+# an ISPRS sample with config/airborne.toml and the CycloMedia tile (default pipeline) — the
+# last two from $TESSERA_DATA (default ../shared/data), skipped when missing.
+# Exit 0 when every output is identical, 1 otherwise.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+OLD=${1:?usage: scripts/compare_outputs.sh OLD_COMMIT [WORKDIR]}
+W=${2:-/tmp/tessera-compare}
+DATA=${TESSERA_DATA:-../shared/data}
+rm -rf "$W"; mkdir -p "$W"
+git worktree add -f --detach "$W/old-src" "$OLD" > /dev/null
+trap 'git worktree remove --force "$W/old-src" 2>/dev/null || true' EXIT
+echo "== building $OLD and the working tree (release)"
+cargo build --release -q --manifest-path "$W/old-src/Cargo.toml" --target-dir "$W/old-target"
+cargo build --release -q
+OLD_BIN="$W/old-target/release/tessera"
+NEW_BIN="${CARGO_TARGET_DIR:-target}/release/tessera"
+
+"$NEW_BIN" -q synth --out "$W/in/demo" --length-m 150 --seed 1
+"$NEW_BIN" -q synth --mcap --out "$W/in/drive" --length-m 40
+CASES=("demo|$W/in/demo|" "drive|$W/in/drive/drive.mcap|")
+[ -f "$DATA/isprs-filtertest/samp11-utm.laz" ] && CASES+=("isprs-samp11|$DATA/isprs-filtertest/samp11-utm.laz|--config config/airborne.toml")
+[ -f "$DATA/cyclomedia-amsterdam-sidewalk/sidewalk_run1_2386_9702.laz" ] && CASES+=("cyclomedia|$DATA/cyclomedia-amsterdam-sidewalk/sidewalk_run1_2386_9702.laz|")
+
+status=0
+for c in "${CASES[@]}"; do
+  IFS='|' read -r name input opts <<< "$c"
+  # shellcheck disable=SC2086
+  "$OLD_BIN" -q run "$input" --out "$W/old/$name" $opts
+  # shellcheck disable=SC2086
+  "$NEW_BIN" -q run "$input" --out "$W/new/$name" $opts
+  files=$(cd "$W/old/$name" && ls -- *.la[sz] *.segments.tsv 2>/dev/null | sort)
+  newfiles=$(cd "$W/new/$name" && ls -- *.la[sz] *.segments.tsv 2>/dev/null | sort)
+  if [ "$files" != "$newfiles" ]; then
+    echo "$name: DIFFERENT file sets"; status=1; continue
+  fi
+  same=0; diff=0
+  for f in $files; do
+    if cmp -s "$W/old/$name/$f" "$W/new/$name/$f"; then same=$((same + 1)); else diff=$((diff + 1)); echo "  differs: $name/$f"; fi
+  done
+  [ "$diff" -eq 0 ] || status=1
+  echo "$name: $same files identical, $diff different"
+done
+exit $status
