@@ -253,7 +253,7 @@ pub fn thin_file(input: &Path, output: &Path, spacing_m: f64) -> crate::Result<T
     })();
     match res {
         Ok(kept) => {
-            std::fs::rename(&tmp, output).map_err(|e| Error::io(output, e))?;
+            crate::io::output::commit_tmp(&tmp, output)?;
             Ok(ThinStats {
                 seen: thinner.seen(),
                 kept,

@@ -67,17 +67,38 @@ fn write_points(path: &Path, n: usize, x0: f64, version: (u8, u8), format: u8) {
     w.close().unwrap();
 }
 
+/// Whether a live run holds `out`'s lock (the lock file exists and cannot be taken).
+fn lock_held(out: &Path) -> bool {
+    std::fs::File::open(out.join(".tessera.lock"))
+        .map(|f| matches!(f.try_lock(), Err(std::fs::TryLockError::WouldBlock)))
+        .unwrap_or(false)
+}
+
+/// Sends a signal (`STOP`, `CONT`, `KILL`) to a child process.
+fn signal(child: &std::process::Child, sig: &str) {
+    let ok = Command::new("kill")
+        .args([format!("-{sig}"), child.id().to_string()])
+        .status()
+        .unwrap()
+        .success();
+    assert!(ok, "kill -{sig}");
+}
+
 fn summary(out: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap()
 }
 
-/// Every file under `dir` with its bytes.
+/// Every file under `dir` with its bytes (tessera's own bookkeeping — lock, journal, work
+/// directories — left out: a run may rewrite those).
 fn snapshot(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
     let mut v = Vec::new();
     let mut stack = vec![dir.to_path_buf()];
     while let Some(d) = stack.pop() {
         for e in std::fs::read_dir(&d).unwrap().flatten() {
             let p = e.path();
+            if e.file_name().to_string_lossy().starts_with(".tessera") {
+                continue;
+            }
             if p.is_dir() {
                 stack.push(p);
             } else {
@@ -391,14 +412,22 @@ fn reruns_never_mix_outputs_and_concurrent_runs_refuse() {
         .arg(&big)
         .spawn()
         .unwrap();
+    // Once the first run holds the directory, it is stopped (SIGSTOP) while the second tries,
+    // so the second meets a live run whatever the machine's speed.
     let t = Instant::now();
-    while !out2.join(".tessera-journal").exists() && t.elapsed() < Duration::from_secs(30) {
-        std::thread::sleep(Duration::from_millis(20));
+    while !lock_held(&out2) {
+        assert!(
+            t.elapsed() < Duration::from_secs(60) && first.try_wait().unwrap().is_none(),
+            "the first run never held its output directory"
+        );
+        std::thread::sleep(Duration::from_millis(1));
     }
+    signal(&first, "STOP");
     let o = run(
         &["run", "--overwrite", "--set", PASS, "--out"],
         &[&out2, &big],
     );
+    signal(&first, "CONT");
     let st = first.wait().unwrap();
     assert!(st.success());
     assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
@@ -741,6 +770,12 @@ fn full_disk_fails_cleanly() {
         .map(|s| s.success())
         .unwrap_or(false);
     if !mounted {
+        // CI runs as root on its own machine: there the gate must run.
+        assert_ne!(
+            std::env::var("CI").as_deref(),
+            Ok("true"),
+            "cannot mount a tmpfs, and CI=true requires the full-disk gate"
+        );
         eprintln!("SKIP: cannot mount a tmpfs here (needs root and mount permission)");
         return;
     }
@@ -828,7 +863,7 @@ fn killed_run_leaves_no_lying_summary() {
             "--set",
             PASS,
             "--set",
-            "tiling.tile_size_m=10",
+            "tiling.tile_size_m=2",
             "--set",
             "tiling.buffer_m=0",
             "--out",
@@ -845,13 +880,17 @@ fn killed_run_leaves_no_lying_summary() {
         {
             break;
         }
-        if t.elapsed() > Duration::from_secs(60) || child.try_wait().unwrap().is_some() {
-            break;
-        }
-        std::thread::sleep(Duration::from_millis(2));
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "the run finished before it could be killed mid-way"
+        );
+        assert!(t.elapsed() < Duration::from_secs(120), "no tile committed");
+        std::thread::sleep(Duration::from_millis(1));
     }
-    let _ = child.kill();
-    let _ = child.wait();
+    child.kill().unwrap();
+    let st = child.wait().unwrap();
+    use std::os::unix::process::ExitStatusExt;
+    assert_eq!(st.signal(), Some(9), "the run was killed, not finished");
     let consistent = |out: &Path| {
         if !out.join("summary.json").exists() {
             return true;
@@ -903,4 +942,116 @@ fn killed_run_leaves_no_lying_summary() {
         .filter(|e| e.file_name().to_string_lossy().starts_with(".tessera-work"))
         .collect();
     assert!(left.is_empty());
+}
+
+/// A run refused before it wrote anything (here: its output directory is its input) leaves at
+/// most a lock file, and that does not make later runs skip the directory as "outputs".
+#[test]
+fn refused_run_does_not_hide_an_input_directory() {
+    let d = tempfile::tempdir().unwrap();
+    let input = d.path().join("in");
+    std::fs::create_dir(&input).unwrap();
+    write_points(&input.join("a.las"), 5_000, 0.0, (1, 2), 1);
+    let o = run(&["run", "--set", PASS, "--out"], &[&input, &input]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    let out = d.path().join("out");
+    let o = run(&["run", "--set", PASS, "--out"], &[&out, d.path()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(summary(&out)["points_in"], 5_000);
+}
+
+/// A header whose count says 0 over data that holds records (a writer that never finished
+/// its header) is refused, not read as an empty file.
+#[test]
+fn zero_count_over_real_records_is_refused() {
+    let d = tempfile::tempdir().unwrap();
+    for (name, version, offset, width) in [
+        ("legacy0.las", (1, 2), 107usize, 4usize),
+        ("both0.las", (1, 4), 107, 4),
+    ] {
+        let f = d.path().join(name);
+        write_points(&f, 1000, 0.0, version, 1);
+        let mut b = std::fs::read(&f).unwrap();
+        b[offset..offset + width].fill(0);
+        if version.1 == 4 {
+            b[247..255].fill(0);
+        }
+        std::fs::write(&f, &b).unwrap();
+        let out = d.path().join(format!("out-{name}"));
+        let o = run(&["run", "--set", PASS, "--out"], &[&out, &f]);
+        assert_eq!(o.status.code(), Some(1), "{name}: {}", stderr(&o));
+        assert!(
+            stderr(&o).contains(name) && stderr(&o).contains("0 points"),
+            "{name}: {}",
+            stderr(&o)
+        );
+        assert!(!out.exists(), "{name}: output left");
+    }
+}
+
+/// `--overwrite` replaces an earlier run only once the new run has something to write: a
+/// run that fails on its inputs leaves the earlier results whole.
+#[test]
+fn overwrite_that_fails_early_keeps_the_earlier_run() {
+    let d = tempfile::tempdir().unwrap();
+    let f = d.path().join("a.las");
+    write_points(&f, 20_000, 0.0, (1, 2), 1);
+    let out = d.path().join("out");
+    let o = run(&["run", "--set", PASS, "--out"], &[&out, &f]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let before = snapshot(&out);
+    let missing = d.path().join("typo.las");
+    let bad = d.path().join("bad.las");
+    std::fs::write(&bad, b"LASF but not really").unwrap();
+    for input in [&missing, &bad] {
+        let o = run(
+            &["run", "--overwrite", "--set", PASS, "--out"],
+            &[&out, input],
+        );
+        assert!(!o.status.success(), "{}", stderr(&o));
+        assert_ne!(o.status.code(), Some(101), "{}", stderr(&o));
+        let now = snapshot(&out);
+        let names = |v: &[(PathBuf, Vec<u8>)]| v.iter().map(|x| x.0.clone()).collect::<Vec<_>>();
+        assert_eq!(names(&now), names(&before), "{}", input.display());
+        assert_survived(&before, &format!("--overwrite with {}", input.display()));
+    }
+}
+
+/// A tile the user edited in place after the run is theirs: `--overwrite` refuses to remove
+/// it (and removes nothing).
+#[test]
+fn overwrite_never_removes_an_edited_tile() {
+    let d = tempfile::tempdir().unwrap();
+    let f = d.path().join("a.las");
+    write_points(&f, 20_000, 0.0, (1, 2), 1);
+    let out = d.path().join("out");
+    let o = run(&["run", "--set", PASS, "--out"], &[&out, &f]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let tile = common::tiles_in(&out)[0].clone();
+    let mut bytes = std::fs::read(&tile).unwrap();
+    bytes.extend_from_slice(b"edited");
+    std::fs::write(&tile, &bytes).unwrap();
+    let before = snapshot(&out);
+    let o = run(&["run", "--overwrite", "--set", PASS, "--out"], &[&out, &f]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(stderr(&o).contains("changed since"), "{}", stderr(&o));
+    assert_survived(&before, "edited tile");
+}
+
+/// Symlinks that loop back to their directory: each directory is walked once.
+#[test]
+fn symlink_loops_are_walked_once() {
+    let d = tempfile::tempdir().unwrap();
+    let input = d.path().join("in");
+    std::fs::create_dir(&input).unwrap();
+    write_points(&input.join("a.las"), 3_000, 0.0, (1, 2), 1);
+    for l in ["loop1", "loop2", "loop3"] {
+        std::os::unix::fs::symlink(&input, input.join(l)).unwrap();
+    }
+    let out = d.path().join("out");
+    let t = Instant::now();
+    let o = run(&["run", "--set", PASS, "--out"], &[&out, &input]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(t.elapsed() < Duration::from_secs(30));
+    assert_eq!(summary(&out)["points_in"], 3_000);
 }

@@ -48,18 +48,30 @@ fn is_point_file(p: &Path) -> bool {
     )
 }
 
-/// Expands directories (recursively, `*.las`/`*.laz`/`*.mcap`) and sorts the list.
+/// Expands directories (recursively, `*.las`/`*.laz`/`*.mcap`) and sorts the list. Every
+/// file must be a regular file (checked before it is opened); the same file reached twice
+/// (two spellings, a symlink) is listed once; tessera's work directories are skipped. Used
+/// where files are read as named (evaluation, samples): tessera output directories inside
+/// the given ones are read too.
 pub fn expand_paths(inputs: &[PathBuf]) -> Result<Vec<PathBuf>> {
-    expand_paths_excluding(inputs, &[])
+    walk_inputs(inputs, &[], false)
 }
 
-/// [`expand_paths`], never entering `exclude` (e.g. the run's output directory) or anything
-/// under it. While walking directories it also skips tessera's work directories and other
-/// tessera output directories (a re-run would read its own earlier tiles); name one
-/// explicitly to read it. Every file must be a regular file (checked before it is opened).
-/// The same file reached twice (two spellings, a symlink) is read once.
+/// [`expand_paths`] for a run: never entering `exclude` (the run's output directory) or
+/// anything under it, and skipping other tessera output directories met while walking (a
+/// re-run would read its own earlier tiles); name one explicitly to read it.
 pub fn expand_paths_excluding(inputs: &[PathBuf], exclude: &[PathBuf]) -> Result<Vec<PathBuf>> {
+    walk_inputs(inputs, exclude, true)
+}
+
+fn walk_inputs(
+    inputs: &[PathBuf],
+    exclude: &[PathBuf],
+    skip_outputs: bool,
+) -> Result<Vec<PathBuf>> {
     use crate::io::workspace::{is_output_dir, is_work_dir};
+    // Directories entered, by canonical path: a symlink loop is walked once.
+    let mut visited: std::collections::HashSet<PathBuf> = std::collections::HashSet::new();
     let exclude: Vec<PathBuf> = exclude
         .iter()
         .filter_map(|p| std::fs::canonicalize(p).ok())
@@ -80,6 +92,7 @@ pub fn expand_paths_excluding(inputs: &[PathBuf], exclude: &[PathBuf]) -> Result
             found.push((canon, p.clone()));
             continue;
         }
+        visited.insert(canon);
         let mut stack = vec![p.clone()];
         while let Some(dir) = stack.pop() {
             let rd = std::fs::read_dir(&dir).map_err(|e| Error::io(&dir, e))?;
@@ -99,14 +112,16 @@ pub fn expand_paths_excluding(inputs: &[PathBuf], exclude: &[PathBuf]) -> Result
                     if is_work_dir(&path) {
                         continue;
                     }
-                    if is_output_dir(&path) {
+                    if skip_outputs && is_output_dir(&path) {
                         tracing::warn!(
                             "skipping {}: it holds the outputs of a tessera run (name it as an input to read it)",
                             path.display()
                         );
                         continue;
                     }
-                    stack.push(path);
+                    if visited.insert(canon) {
+                        stack.push(path);
+                    }
                 } else if is_point_file(&path) {
                     crate::io::files::require_regular(&path)?;
                     found.push((canon, path));
@@ -245,19 +260,30 @@ fn records_present(
             format!("truncated or corrupt LAZ: cannot read the chunk table ({e})"),
         )
     })?;
-    let bytes: u64 = table.as_ref().iter().map(|c| c.byte_count).sum();
-    if start + 8 + bytes > file_len {
+    let corrupt_table = || {
+        Error::bad_input(
+            path,
+            "corrupt LAZ chunk table: its byte or point counts overflow".to_string(),
+        )
+    };
+    let needed = table
+        .as_ref()
+        .iter()
+        .try_fold(start + 8, |acc, c| acc.checked_add(c.byte_count))
+        .ok_or_else(corrupt_table)?;
+    if needed > file_len {
         return Err(Error::bad_input(
             path,
-            format!(
-                "truncated LAZ: chunks need {} bytes but the file is {file_len}",
-                start + 8 + bytes
-            ),
+            format!("truncated LAZ: chunks need {needed} bytes but the file is {file_len}"),
         ));
     }
     let n_chunks = table.len() as u64;
     Ok(if vlr.uses_variable_size_chunks() {
-        let s: u64 = table.as_ref().iter().map(|c| c.point_count).sum();
+        let s = table
+            .as_ref()
+            .iter()
+            .try_fold(0u64, |acc, c| acc.checked_add(c.point_count))
+            .ok_or_else(corrupt_table)?;
         Present {
             lo: s,
             hi: s,
@@ -266,8 +292,11 @@ fn records_present(
     } else {
         let cs = u64::from(vlr.chunk_size());
         Present {
-            lo: n_chunks.saturating_sub(1) * cs + 1,
-            hi: n_chunks * cs,
+            lo: n_chunks
+                .saturating_sub(1)
+                .saturating_mul(cs)
+                .saturating_add(1),
+            hi: n_chunks.saturating_mul(cs),
             likely: None,
         }
     })
@@ -284,9 +313,18 @@ fn records_present(
 fn point_count(path: &Path, raw: &las::raw::Header, present: Present) -> Result<u64> {
     let legacy = u64::from(raw.number_of_point_records);
     let Present { lo, hi, likely } = present;
-    // One count: it must not exceed the data, and a non-zero count must reach the data's
-    // lower bound. Two disagreeing counts: the data must hold exactly what a count says.
-    let plausible = |n: u64| n <= hi && (n == 0 || n >= lo);
+    // One count: it must not exceed the data and must reach the data's lower bound; a count
+    // of 0 is refused when the data is known to hold records (a writer that never finished
+    // its header would otherwise read as an empty file). Two disagreeing counts: the data
+    // must hold exactly what a count says.
+    let holds_records = likely.is_some_and(|l| l > 0);
+    let plausible = |n: u64| {
+        if n == 0 {
+            !holds_records
+        } else {
+            n >= lo && n <= hi
+        }
+    };
     let fits = |n: u64| n <= hi && n >= lo;
     let describe = || {
         if lo == hi {

@@ -38,9 +38,11 @@ pub fn is_work_dir(dir: &Path) -> bool {
         && dir.join(WORK_MARKER).is_file()
 }
 
-/// Whether `dir` holds a tessera run's outputs (a journal or a lock file).
+/// Whether `dir` holds a tessera run's outputs: a journal (a run wrote files there), or a
+/// live run holding its lock. A lock file alone, left by a run that was refused or failed
+/// before writing anything, does not count.
 pub fn is_output_dir(dir: &Path) -> bool {
-    dir.join(JOURNAL).is_file() || dir.join(LOCK_FILE).is_file()
+    dir.join(JOURNAL).is_file() || lock_is_held(dir)
 }
 
 /// A unique, marked directory a run creates and removes (see the module docs).
@@ -158,6 +160,8 @@ fn sweep_stale(base: &Path) {
 struct Previous {
     /// Files it wrote (names inside the directory).
     files: Vec<String>,
+    /// Size and modification time (ns) each file had when the run committed it, where recorded.
+    stamps: std::collections::HashMap<String, (u64, i128)>,
     /// Whether it finished (wrote its summary).
     finished: bool,
     /// Where the list came from.
@@ -165,12 +169,18 @@ struct Previous {
 }
 
 /// The user's output directory, held for one run (see the module docs).
+///
+/// Nothing in the directory changes until the run commits its first file: an earlier run's
+/// outputs that `--overwrite` replaces are removed then, not when the directory is opened, so
+/// a run that fails before it has anything to write (a typo in an input path, a refused input)
+/// leaves the earlier results as they were.
 #[derive(Debug)]
 pub struct OutputDir {
     dir: PathBuf,
-    /// The locked lock file: held until the run ends.
-    _lock: File,
-    journal: File,
+    /// The journal, once the run has started writing (see [`OutputDir::commit`]).
+    journal: Option<File>,
+    /// What an earlier run left and `--overwrite` replaces, until the first commit.
+    previous: Option<Previous>,
     /// Staging area for files before they are committed (same file system as `dir`).
     stage: WorkDir,
     /// Files this run committed, in order.
@@ -178,6 +188,9 @@ pub struct OutputDir {
     finished: bool,
     /// The run created the directory (a failed run then removes it if nothing else is there).
     created: bool,
+    /// The locked lock file: held until the run ends. Declared last so that it is released
+    /// after everything else of the run is gone.
+    _lock: File,
 }
 
 /// Removes a directory `open` created, if it holds nothing but the lock file.
@@ -194,7 +207,9 @@ impl Drop for CreatedDir {
     }
 }
 
-/// Removes `dir` when it holds only tessera's lock file (a run created it and failed).
+/// Removes `dir` when it holds only tessera's lock file (a run created it and failed). The
+/// caller still holds the lock; a run that opened the old lock file meanwhile notices that
+/// its file is no longer the directory's lock file and tries again (see `take_lock`).
 fn remove_if_only_lock(dir: &Path) {
     let only_lock = std::fs::read_dir(dir)
         .map(|rd| {
@@ -208,21 +223,40 @@ fn remove_if_only_lock(dir: &Path) {
     }
 }
 
-impl OutputDir {
-    /// Takes `dir` (created if missing) for a run. Refuses when another run holds it, and
-    /// when an earlier run's outputs are there unless `overwrite`, which removes exactly the
-    /// files that run recorded.
-    pub fn open(dir: &Path, overwrite: bool) -> Result<OutputDir> {
-        let created = !dir.exists();
-        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-        let lock_path = dir.join(LOCK_FILE);
-        let mut lock = OpenOptions::new()
-            .read(true)
-            .write(true)
-            .create(true)
-            .truncate(false)
-            .open(&lock_path)
-            .map_err(|e| Error::io(&lock_path, e))?;
+/// Opens a bookkeeping file without following a symlink (a link planted under that name must
+/// not make tessera truncate or create a file elsewhere); it must be a regular file.
+fn open_no_follow(path: &Path, opts: &mut OpenOptions) -> Result<File> {
+    use std::os::unix::fs::OpenOptionsExt;
+    let f = opts
+        .custom_flags(libc::O_NOFOLLOW)
+        .open(path)
+        .map_err(|e| Error::io(path, e))?;
+    let regular = f.metadata().map(|m| m.is_file()).unwrap_or(false);
+    if !regular {
+        return Err(Error::OutputDir {
+            path: path.to_path_buf(),
+            reason: "is not a regular file; tessera keeps its own bookkeeping there".into(),
+            usage: false,
+        });
+    }
+    Ok(f)
+}
+
+/// Locks `dir`'s lock file. A held lock is another live run: refused. The file locked must
+/// still be the one the directory names afterwards (a failing run may remove its lock file
+/// and directory), else it tries again.
+fn take_lock(dir: &Path) -> Result<File> {
+    use std::os::unix::fs::MetadataExt;
+    let lock_path = dir.join(LOCK_FILE);
+    for _ in 0..100 {
+        let lock = open_no_follow(
+            &lock_path,
+            OpenOptions::new()
+                .read(true)
+                .write(true)
+                .create(true)
+                .truncate(false),
+        )?;
         match lock.try_lock() {
             Ok(()) => {}
             Err(TryLockError::WouldBlock) => {
@@ -238,6 +272,47 @@ impl OutputDir {
             }
             Err(TryLockError::Error(e)) => return Err(Error::io(&lock_path, e)),
         }
+        let held = lock.metadata().map_err(|e| Error::io(&lock_path, e))?;
+        match std::fs::symlink_metadata(&lock_path) {
+            Ok(now) if now.ino() == held.ino() && now.dev() == held.dev() => return Ok(lock),
+            _ => {
+                // Removed (or replaced) between open and lock: the directory may be gone too.
+                std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+            }
+        }
+    }
+    Err(Error::OutputDir {
+        path: dir.to_path_buf(),
+        reason: "its lock file keeps changing; is another program removing it?".into(),
+        usage: false,
+    })
+}
+
+/// Whether a live run holds `dir`'s lock.
+pub fn lock_is_held(dir: &Path) -> bool {
+    let Ok(f) = File::open(dir.join(LOCK_FILE)) else {
+        return false;
+    };
+    matches!(f.try_lock(), Err(TryLockError::WouldBlock))
+}
+
+/// Size and modification time (ns since the epoch) of a file, for the journal.
+fn stamp(m: &std::fs::Metadata) -> (u64, i128) {
+    use std::os::unix::fs::MetadataExt;
+    (
+        m.len(),
+        i128::from(m.mtime()) * 1_000_000_000 + i128::from(m.mtime_nsec()),
+    )
+}
+
+impl OutputDir {
+    /// Takes `dir` (created if missing) for a run. Refuses when another run holds it, and
+    /// when an earlier run's outputs are there unless `overwrite`; those (exactly the files
+    /// that run recorded) are removed when this run commits its first file.
+    pub fn open(dir: &Path, overwrite: bool) -> Result<OutputDir> {
+        let created = !dir.exists();
+        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+        let mut lock = take_lock(dir)?;
         // From here on, leaving (also by an error below) undoes what `open` created.
         let mut guard = CreatedDir {
             dir: dir.to_path_buf(),
@@ -269,24 +344,11 @@ impl OutputDir {
                     usage: true,
                 });
             }
+            // Refuse now, before any work, when a recorded file was changed since.
+            check_unchanged(dir, prev)?;
         }
         // Staging first: it sweeps work directories of killed runs.
         let stage = WorkDir::create(dir)?;
-        if let Some(prev) = prev {
-            remove_previous(dir, &prev)?;
-        }
-        let jpath = dir.join(JOURNAL);
-        let mut journal = File::create(&jpath).map_err(|e| Error::io(&jpath, e))?;
-        writeln!(
-            journal,
-            "{JOURNAL_HEADER}\tprocess {}\tstarted {}",
-            std::process::id(),
-            std::time::SystemTime::now()
-                .duration_since(std::time::UNIX_EPOCH)
-                .map(|d| d.as_secs())
-                .unwrap_or(0)
-        )
-        .map_err(|e| Error::io(&jpath, e))?;
         let foreign = foreign_entries(dir);
         if foreign > 0 {
             tracing::info!(
@@ -298,11 +360,12 @@ impl OutputDir {
         Ok(OutputDir {
             dir: dir.to_path_buf(),
             created,
-            _lock: lock,
-            journal,
+            journal: None,
+            previous: prev,
             stage,
             committed: Vec::new(),
             finished: false,
+            _lock: lock,
         })
     }
 
@@ -317,25 +380,79 @@ impl OutputDir {
         self.stage.path()
     }
 
+    /// Before the first commit: removes what `--overwrite` replaces and starts this run's
+    /// journal (written whole under a temporary name, then renamed, so a journal is never
+    /// found half-written).
+    fn start_writing(&mut self) -> Result<&mut File> {
+        if self.journal.is_none() {
+            if let Some(prev) = self.previous.take() {
+                check_unchanged(&self.dir, &prev)?;
+                remove_previous(&self.dir, &prev)?;
+            }
+            let jpath = self.dir.join(JOURNAL);
+            let tmp = self.stage.path().join("journal.tmp");
+            let mut journal = File::create(&tmp).map_err(|e| Error::io(&tmp, e))?;
+            writeln!(
+                journal,
+                "{JOURNAL_HEADER}\tprocess {}\tstarted {}",
+                std::process::id(),
+                std::time::SystemTime::now()
+                    .duration_since(std::time::UNIX_EPOCH)
+                    .map(|d| d.as_secs())
+                    .unwrap_or(0)
+            )
+            .and_then(|_| journal.sync_all())
+            .map_err(|e| Error::io(&tmp, e))?;
+            std::fs::rename(&tmp, &jpath).map_err(|e| Error::io(&jpath, e))?;
+            self.journal = Some(journal);
+        }
+        match self.journal.as_mut() {
+            Some(j) => Ok(j),
+            None => Err(Error::Internal("journal not started".into())),
+        }
+    }
+
     /// Moves staged files into the directory under `name`s: each is recorded in the journal
     /// first, and an existing file of that name is never replaced.
     pub fn commit(&mut self, files: &[(PathBuf, String)]) -> Result<()> {
+        let jpath = self.dir.join(JOURNAL);
         for (staged, name) in files {
             check_name(name)?;
             let target = self.dir.join(name);
-            if std::fs::symlink_metadata(&target).is_ok() {
-                return Err(Error::OutputDir {
-                    path: self.dir.clone(),
-                    reason: format!(
-                        "{name} already exists and was not written by this run; refusing to replace it"
-                    ),
-                    usage: false,
-                });
+            let exists = |t: &Path| std::fs::symlink_metadata(t).is_ok();
+            let dir = self.dir.clone();
+            let clash = || Error::OutputDir {
+                path: dir.clone(),
+                reason: format!(
+                    "{name} already exists and was not written by this run; refusing to replace it"
+                ),
+                usage: false,
+            };
+            // First what `--overwrite` replaces goes (the earlier run's tiles may have the
+            // names this run writes).
+            let journal = self.start_writing()?;
+            if exists(&target) {
+                return Err(clash());
             }
-            writeln!(self.journal, "file\t{name}")
-                .map_err(|e| Error::io(self.dir.join(JOURNAL), e))?;
+            writeln!(journal, "file\t{name}").map_err(|e| Error::io(&jpath, e))?;
             self.committed.push(name.clone());
-            std::fs::rename(staged, &target).map_err(|e| Error::io(&target, e))?;
+            // A hard link fails when the name exists (created since the check above), where a
+            // rename would silently replace it; file systems without hard links get the rename.
+            match std::fs::hard_link(staged, &target) {
+                Ok(()) => {
+                    let _ = std::fs::remove_file(staged);
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
+                    self.committed.pop();
+                    return Err(clash());
+                }
+                Err(_) => std::fs::rename(staged, &target).map_err(|e| Error::io(&target, e))?,
+            }
+            let (len, mtime) = std::fs::metadata(&target)
+                .map(|m| stamp(&m))
+                .map_err(|e| Error::io(&target, e))?;
+            let journal = self.start_writing()?;
+            writeln!(journal, "stamp\t{len}\t{mtime}\t{name}").map_err(|e| Error::io(&jpath, e))?;
         }
         Ok(())
     }
@@ -350,7 +467,11 @@ impl OutputDir {
         let staged = self.stage().join(SUMMARY);
         std::fs::write(&staged, summary).map_err(|e| Error::io(&staged, e))?;
         self.commit(&[(staged, SUMMARY.to_string())])?;
-        writeln!(self.journal, "done").map_err(|e| Error::io(self.dir.join(JOURNAL), e))?;
+        let jpath = self.dir.join(JOURNAL);
+        let journal = self.start_writing()?;
+        writeln!(journal, "done")
+            .and_then(|_| journal.sync_all())
+            .map_err(|e| Error::io(&jpath, e))?;
         self.finished = true;
         Ok(())
     }
@@ -367,8 +488,10 @@ impl Drop for OutputDir {
         for name in self.committed.iter().rev() {
             let _ = std::fs::remove_file(self.dir.join(name));
         }
-        if self.journal.set_len(0).is_ok() {
-            let _ = std::fs::remove_file(self.dir.join(JOURNAL));
+        if let Some(j) = &self.journal {
+            if j.set_len(0).is_ok() {
+                let _ = std::fs::remove_file(self.dir.join(JOURNAL));
+            }
         }
         if self.created {
             // The staging directory goes first (fields drop after this), so look past it.
@@ -399,6 +522,8 @@ fn check_name(name: &str) -> Result<()> {
 fn previous_run(dir: &Path) -> Result<Option<Previous>> {
     let jpath = dir.join(JOURNAL);
     match std::fs::read_to_string(&jpath) {
+        // An empty journal: a run of an earlier version killed before it wrote anything.
+        Ok(text) if text.is_empty() && !dir.join(SUMMARY).exists() => Ok(None),
         Ok(text) => {
             let mut lines = text.lines();
             if lines.next().map(|l| l.split('\t').next()) != Some(Some(JOURNAL_HEADER)) {
@@ -418,6 +543,14 @@ fn previous_run(dir: &Path) -> Result<Option<Previous>> {
                 if let Some(name) = l.strip_prefix("file\t") {
                     if check_name(name).is_ok() {
                         p.files.push(name.to_string());
+                    }
+                } else if let Some(rest) = l.strip_prefix("stamp\t") {
+                    let mut it = rest.splitn(3, '\t');
+                    if let (Some(len), Some(mtime), Some(name)) = (it.next(), it.next(), it.next())
+                    {
+                        if let (Ok(len), Ok(mtime)) = (len.parse(), mtime.parse()) {
+                            p.stamps.insert(name.to_string(), (len, mtime));
+                        }
                     }
                 } else if l == "done" {
                     p.finished = true;
@@ -453,6 +586,7 @@ fn previous_run(dir: &Path) -> Result<Option<Previous>> {
                 files,
                 finished: true,
                 source: "summary.json",
+                ..Default::default()
             }))
         }
         Err(e) => Err(Error::io(&jpath, e)),
@@ -475,9 +609,31 @@ fn summary_files(text: &str) -> Option<Vec<String>> {
     Some(files)
 }
 
+/// Refuses to replace an earlier run's file that was changed after that run wrote it (e.g. a
+/// tile edited and saved in place): it is the user's now. Files without a recorded stamp
+/// (older journals) are not checked.
+fn check_unchanged(dir: &Path, prev: &Previous) -> Result<()> {
+    for name in &prev.files {
+        let (Some(&recorded), Ok(m)) = (prev.stamps.get(name), std::fs::metadata(dir.join(name)))
+        else {
+            continue;
+        };
+        if stamp(&m) != recorded {
+            return Err(Error::OutputDir {
+                path: dir.to_path_buf(),
+                reason: format!(
+                    "{name} was written by an earlier run but changed since (size or time differs); it is not replaced — move it away first, or choose another --out"
+                ),
+                usage: false,
+            });
+        }
+    }
+    Ok(())
+}
+
 /// Removes an earlier run's files: the summary first (so no summary ever describes files that
-/// are gone), then the rest. Only regular files named by the record; missing ones are fine
-/// (an interrupted `--overwrite` is simply repeated).
+/// are gone), then the rest, then its journal. Only regular files named by the record;
+/// missing ones are fine (an interrupted `--overwrite` is simply repeated).
 fn remove_previous(dir: &Path, prev: &Previous) -> Result<()> {
     let order = std::iter::once(SUMMARY).chain(
         prev.files
@@ -588,7 +744,14 @@ mod tests {
         let e = OutputDir::open(d.path(), false).unwrap_err();
         assert!(e.to_string().contains("--overwrite"), "{e}");
         assert!(e.is_usage());
+        // Overwrite: nothing changes until the run commits its first file.
+        let out = OutputDir::open(d.path(), true).unwrap();
+        assert!(d.path().join("t1.laz").is_file() && d.path().join(SUMMARY).is_file());
+        drop(out);
+        assert!(d.path().join("t1.laz").is_file() && d.path().join(SUMMARY).is_file());
         let mut out = OutputDir::open(d.path(), true).unwrap();
+        let f = stage_file(&out, "t2.laz", "tile");
+        out.commit(&[f]).unwrap();
         assert!(!d.path().join("t1.laz").exists());
         assert!(!d.path().join(SUMMARY).exists());
         assert!(d.path().join("notes.txt").is_file());

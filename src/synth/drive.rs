@@ -141,7 +141,7 @@ pub fn write_drive(p: &LidarParams, dir: &Path) -> Result<DriveStats> {
     let res = write_mcap(p, &tmp);
     match res {
         Ok(s) => {
-            std::fs::rename(&tmp, &path).map_err(|e| Error::io(&path, e))?;
+            crate::io::output::commit_tmp(&tmp, &path)?;
             write_segments_tsv(dir, &segments(&p.scene))?;
             Ok(s)
         }

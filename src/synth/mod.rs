@@ -14,7 +14,7 @@ pub use scene::{generate_slab, segments, Blocks, SceneParams, SegmentTruth, Synt
 
 use crate::error::{Error, Result};
 use crate::io::laswrite::LasFile;
-use crate::io::output::{tmp_path, write_atomic};
+use crate::io::output::{commit_tmp, tmp_path, write_atomic};
 use las::point::Format;
 use las::{Builder, Point, Transform, Vector, Version, Vlr};
 use rayon::prelude::*;
@@ -146,7 +146,7 @@ fn write_points(path: &Path, header: &las::Header, pts: &[SynthPoint]) -> Result
         let _ = std::fs::remove_file(&tmp);
         return Err(e);
     }
-    std::fs::rename(&tmp, path).map_err(|e| Error::io(path, e))
+    commit_tmp(&tmp, path)
 }
 
 /// Writes the reference segments as `segments.tsv` (world coordinates).
