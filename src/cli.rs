@@ -3,6 +3,7 @@
 
 use clap::{Args, Parser, Subcommand};
 use std::path::PathBuf;
+use std::str::FromStr;
 
 /// tessera — streaming out-of-core tile processor for mobile-mapping point clouds.
 #[derive(Debug, Parser)]
@@ -73,39 +74,7 @@ pub enum Command {
         opts: RunOpts,
     },
     /// Generate a deterministic synthetic street scene with ground truth.
-    Synth {
-        /// Output directory.
-        #[arg(long)]
-        out: PathBuf,
-        /// Random seed.
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
-        /// Length of the drive, metres.
-        #[arg(long, default_value_t = 200.0)]
-        length_m: f64,
-        /// Point density at 5 m from the drive line, points per m².
-        #[arg(long)]
-        points_per_m2: Option<f64>,
-        /// Length of the drive written to each output file, metres.
-        #[arg(long, default_value_t = 50.0)]
-        file_length_m: f64,
-        /// Which scene: a street drive, or a row of coloured houses (segmentation gate).
-        #[arg(long, value_enum, default_value_t = SceneKind::Street)]
-        scene: SceneKind,
-        /// Number of houses (buildings scene).
-        #[arg(long, default_value_t = 4)]
-        houses: usize,
-        /// Write the street as a drive recording instead: a simulated spinning LiDAR, as ROS 2
-        /// MCAP (PointCloud2 + /tf), with truth fields per point (`drive.mcap`).
-        #[arg(long)]
-        mcap: bool,
-        /// Beams of the simulated LiDAR (--mcap).
-        #[arg(long, default_value_t = 32)]
-        rings: u32,
-        /// Firings per revolution of the simulated LiDAR (--mcap).
-        #[arg(long, default_value_t = 1024)]
-        columns: u32,
-    },
+    Synth(SynthArgs),
     /// Density reduction by minimum point spacing (Sapkota §5.3), streaming: a point is kept
     /// unless a kept point lies within the spacing.
     Thin {
@@ -119,33 +88,7 @@ pub enum Command {
     },
     /// Summarise training samples for the labelling stage (mean and σ of L*, a*, b* per sample)
     /// into a JSON file for `label.samples`.
-    Samples {
-        /// A LAS/LAZ of classified points (one sample per class and block), or a GeoJSON of
-        /// polygons with a `class` property selecting points of `--input` (one per polygon).
-        #[arg(long)]
-        from: PathBuf,
-        /// Point files the polygons select from (GeoJSON only).
-        #[arg(long)]
-        input: Vec<PathBuf>,
-        /// Attribute holding the class codes of a LAS/LAZ source.
-        #[arg(long, default_value = "classification")]
-        field: String,
-        /// Only points of these classes enter polygon samples (default: ground, 2).
-        #[arg(long, value_delimiter = ',', default_value = "2")]
-        point_classes: Vec<u8>,
-        /// Sample classes kept from a LAS/LAZ source (default: every class but 0, 1, 2, 7, 18).
-        #[arg(long, value_delimiter = ',')]
-        classes: Vec<u8>,
-        /// Block size splitting a LAS/LAZ source into samples, metres.
-        #[arg(long, default_value_t = 5.0)]
-        block_m: f64,
-        /// Fewer coloured points than this: not a sample.
-        #[arg(long, default_value_t = 30)]
-        min_points: u64,
-        /// Output JSON.
-        #[arg(long)]
-        out: PathBuf,
-    },
+    Samples(SamplesArgs),
     /// Synthesise a small street scene and run the pipeline on it.
     Demo {
         /// Output directory (default: ./tessera-demo).
@@ -170,6 +113,72 @@ pub enum Command {
         /// The file.
         file: PathBuf,
     },
+}
+
+/// Arguments of `tessera synth`.
+#[derive(Debug, Args, Clone)]
+pub struct SynthArgs {
+    /// Output directory.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Random seed.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Length of the drive, metres.
+    #[arg(long, default_value_t = 200.0)]
+    pub length_m: f64,
+    /// Point density at 5 m from the drive line, points per m².
+    #[arg(long)]
+    pub points_per_m2: Option<f64>,
+    /// Length of the drive written to each output file, metres.
+    #[arg(long, default_value_t = 50.0)]
+    pub file_length_m: f64,
+    /// Which scene: a street drive, or a row of coloured houses (segmentation gate).
+    #[arg(long, value_enum, default_value_t = SceneKind::Street)]
+    pub scene: SceneKind,
+    /// Number of houses (buildings scene).
+    #[arg(long, default_value_t = 4)]
+    pub houses: usize,
+    /// Write the street as a drive recording instead: a simulated spinning LiDAR, as ROS 2
+    /// MCAP (PointCloud2 + /tf), with truth fields per point (`drive.mcap`).
+    #[arg(long)]
+    pub mcap: bool,
+    /// Beams of the simulated LiDAR (--mcap).
+    #[arg(long, default_value_t = 32)]
+    pub rings: u32,
+    /// Firings per revolution of the simulated LiDAR (--mcap).
+    #[arg(long, default_value_t = 1024)]
+    pub columns: u32,
+}
+
+/// Arguments of `tessera samples`.
+#[derive(Debug, Args, Clone)]
+pub struct SamplesArgs {
+    /// A LAS/LAZ of classified points (one sample per class and block), or a GeoJSON of
+    /// polygons with a `class` property selecting points of `--input` (one per polygon).
+    #[arg(long)]
+    pub from: PathBuf,
+    /// Point files the polygons select from (GeoJSON only).
+    #[arg(long)]
+    pub input: Vec<PathBuf>,
+    /// Attribute holding the class codes of a LAS/LAZ source.
+    #[arg(long, default_value = "classification")]
+    pub field: String,
+    /// Only points of these classes enter polygon samples (default: ground, 2).
+    #[arg(long, value_delimiter = ',', default_value = "2")]
+    pub point_classes: Vec<u8>,
+    /// Sample classes kept from a LAS/LAZ source (default: every class but 0, 1, 2, 7, 18).
+    #[arg(long, value_delimiter = ',')]
+    pub classes: Vec<u8>,
+    /// Block size splitting a LAS/LAZ source into samples, metres.
+    #[arg(long, default_value_t = 5.0)]
+    pub block_m: f64,
+    /// Fewer coloured points than this: not a sample.
+    #[arg(long, default_value_t = 30)]
+    pub min_points: u64,
+    /// Output JSON.
+    #[arg(long)]
+    pub out: PathBuf,
 }
 
 /// Synthetic scenes.
@@ -229,10 +238,10 @@ pub enum EvalCommand {
         classes: Vec<u8>,
         /// Map result codes onto one code before scoring, e.g. 2=11,64,65,66,67 (repeatable).
         #[arg(long = "map", value_name = "TO=FROM,...")]
-        map: Vec<String>,
+        map: Vec<ClassMap>,
         /// Score only reference points with x0 <= x < x1 (e.g. away from training samples).
         #[arg(long, value_name = "X0,X1")]
-        x_range: Option<String>,
+        x_range: Option<XRange>,
         /// Coordinate precision for matching points, metres.
         #[arg(long, default_value_t = 0.001)]
         match_precision_m: f64,
@@ -260,7 +269,7 @@ pub enum EvalCommand {
         res_field: String,
         /// Score only reference points whose FIELD is one of the values, e.g. gt_class=6.
         #[arg(long, value_name = "FIELD=V1,V2")]
-        restrict: Option<String>,
+        restrict: Option<Restrict>,
         /// Result ids are global (stitched): do not make them unique per file.
         #[arg(long)]
         global_ids: bool,
@@ -281,4 +290,106 @@ pub enum EvalCommand {
         #[arg(long)]
         json: bool,
     },
+}
+
+/// `--map TO=FROM,...`: result codes mapped onto one code before scoring.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ClassMap {
+    /// The code scored.
+    pub to: u8,
+    /// The result codes that count as `to`.
+    pub from: Vec<u8>,
+}
+
+impl FromStr for ClassMap {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        let (to, from) = s
+            .split_once('=')
+            .ok_or_else(|| "expected TO=FROM,...".to_string())?;
+        let to = to.trim().parse::<u8>().map_err(|e| format!("{to}: {e}"))?;
+        let from = from
+            .split(',')
+            .map(|x| x.trim().parse::<u8>().map_err(|e| format!("{x}: {e}")))
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(ClassMap { to, from })
+    }
+}
+
+/// `--x-range X0,X1` with X0 < X1 (finite).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct XRange(pub f64, pub f64);
+
+impl FromStr for XRange {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        let v = s
+            .split(',')
+            .map(|x| x.trim().parse::<f64>().map_err(|e| format!("{x}: {e}")))
+            .collect::<Result<Vec<_>, _>>()?;
+        match v[..] {
+            [a, b] if a.is_finite() && b.is_finite() && a < b => Ok(XRange(a, b)),
+            _ => Err("expected X0,X1 with X0 < X1".into()),
+        }
+    }
+}
+
+/// `--restrict FIELD=V1,V2,...`: score only reference points whose FIELD is one of the values.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Restrict {
+    /// Attribute name.
+    pub field: String,
+    /// Values kept.
+    pub values: Vec<u32>,
+}
+
+impl FromStr for Restrict {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        let (field, v) = s
+            .split_once('=')
+            .ok_or_else(|| "expected FIELD=V1,V2,...".to_string())?;
+        if field.trim().is_empty() {
+            return Err("expected FIELD=V1,V2,... (no field name)".into());
+        }
+        let values = v
+            .split(',')
+            .map(|x| x.trim().parse::<u32>().map_err(|e| format!("{x}: {e}")))
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(Restrict {
+            field: field.trim().to_string(),
+            values,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn argument_types_parse_and_refuse() {
+        assert_eq!(
+            "2=11, 64,65".parse::<ClassMap>().unwrap(),
+            ClassMap {
+                to: 2,
+                from: vec![11, 64, 65]
+            }
+        );
+        assert!("2:11".parse::<ClassMap>().is_err());
+        assert!("2=300".parse::<ClassMap>().is_err());
+        assert_eq!("1.5, 9".parse::<XRange>().unwrap(), XRange(1.5, 9.0));
+        for bad in ["9,1", "1", "1,2,3", "a,b", "NaN,1", "1,inf"] {
+            assert!(bad.parse::<XRange>().is_err(), "{bad}");
+        }
+        assert_eq!(
+            "gt_class=6,2".parse::<Restrict>().unwrap(),
+            Restrict {
+                field: "gt_class".into(),
+                values: vec![6, 2]
+            }
+        );
+        assert!("=6".parse::<Restrict>().is_err());
+        assert!("gt_class".parse::<Restrict>().is_err());
+    }
 }

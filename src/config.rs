@@ -61,15 +61,7 @@ pub struct StagesParams {
     pub run: Vec<String>,
 }
 
-/// Ground stage settings.
-#[derive(Debug, Clone, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct GroundSection {
-    /// Class for non-ground points (-1 = keep the input class).
-    pub nonground_class: i64,
-    /// Filter parameters.
-    pub params: crate::ground::GroundParams,
-}
+pub use crate::pipeline::ground_stage::GroundSection;
 
 /// The whole validated configuration.
 #[derive(Debug, Clone, Deserialize)]
@@ -186,24 +178,10 @@ impl Config {
             )));
         }
         self.output_point_format()?;
-        if !(-1..=255).contains(&self.ground.nonground_class) {
-            return Err(Error::Config(format!(
-                "ground.nonground_class must be -1 (keep) or 0..=255, got {}",
-                self.ground.nonground_class
-            )));
-        }
-        self.ground
-            .params
-            .validate()
-            .map_err(|e| Error::Config(format!("ground.params: {e}")))?;
         self.mcap.validate()?;
         self.stitch.validate().map_err(Error::Config)?;
-        if self.stages.run.is_empty() {
-            return Err(Error::Config(
-                "stages.run must name at least one stage".into(),
-            ));
-        }
-        Ok(())
+        // Every stage's own section (whether or not it runs) and the stage list.
+        crate::pipeline::stage::validate_stages(self)
     }
 }
 
@@ -291,5 +269,26 @@ mod tests {
         assert!(Config::load(None, &["tiling.nope=1".into()]).is_err());
         assert!(Config::load(None, &["tiling.buffer_m=100".into()]).is_err());
         assert!(Config::load(None, &["output.point_format=12".into()]).is_err());
+    }
+
+    #[test]
+    fn every_stage_section_is_checked_at_load_and_the_stage_list_too() {
+        let err = |o: &[&str]| {
+            let o: Vec<String> = o.iter().map(|s| s.to_string()).collect();
+            Config::load(None, &o).unwrap_err().to_string()
+        };
+        // Sections of stages that do not run are still checked.
+        let only_stats = "stages.run=[\"stats\"]";
+        assert!(err(&[only_stats, "segment.buffer_m=-1"]).contains("segment.buffer_m"));
+        assert!(err(&[only_stats, "label.buffer_m=-1"]).contains("label"));
+        assert!(err(&[only_stats, "ground.nonground_class=300"]).contains("nonground_class"));
+        // The list: known names, once each, prerequisites first.
+        assert!(err(&["stages.run=[\"grund\"]"]).contains("unknown stage \"grund\""));
+        assert!(err(&["stages.run=[\"ground\", \"ground\"]"]).contains("twice"));
+        assert!(err(&["stages.run=[\"label\"]"]).contains("needs \"ground\""));
+        assert!(err(&["stages.run=[\"label\", \"ground\"]"]).contains("needs \"ground\""));
+        assert!(err(&["stages.run=[]"]).contains("at least one"));
+        let ok = Config::load(None, &["stages.run=[\"ground\", \"label\"]".into()]);
+        assert!(ok.is_ok());
     }
 }

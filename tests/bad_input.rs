@@ -203,3 +203,35 @@ fn usage_errors_exit_2() {
     let o = tessera().args(["frobnicate"]).output().unwrap();
     assert_eq!(o.status.code(), Some(2));
 }
+
+/// A wrong value in the section of a stage that is not even running is a configuration error
+/// (exit 2) found before any input is looked at: here the input does not exist, and the
+/// message is about the setting, not the file.
+#[test]
+fn config_errors_come_before_any_input_is_read() {
+    let d = tempfile::tempdir().unwrap();
+    for set in [
+        "segment.buffer_m=-1",
+        "stages.run=[\"label\", \"ground\"]",
+        "stages.run=[\"nope\"]",
+    ] {
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_tessera"))
+            .args([
+                "-q",
+                "run",
+                "--set",
+                "stages.run=[\"stats\"]",
+                "--set",
+                set,
+                "--out",
+            ])
+            .arg(d.path().join("out"))
+            .arg(d.path().join("missing.las"))
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{set}: {err}");
+        assert!(!err.contains("missing.las"), "{set}: {err}");
+        assert!(!d.path().join("out").exists(), "{set}: output created");
+    }
+}

@@ -1055,3 +1055,50 @@ fn symlink_loops_are_walked_once() {
     assert!(t.elapsed() < Duration::from_secs(30));
     assert_eq!(summary(&out)["points_in"], 3_000);
 }
+
+/// MCAP drives are decoded into parts inside the run's own work directory: with the spill
+/// directory set to a user's directory, neither it, its files, nor a sibling named like the
+/// old `<spill_dir>-mcap` staging directory is touched, and nothing of the run is left.
+#[test]
+fn mcap_staging_stays_in_the_run_work_dir() {
+    let d = tempfile::tempdir().unwrap();
+    let drive = d.path().join("drive");
+    let o = run(
+        &[
+            "synth",
+            "--mcap",
+            "--length-m",
+            "6",
+            "--rings",
+            "8",
+            "--columns",
+            "256",
+            "--out",
+        ],
+        &[&drive],
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let user = d.path().join("user");
+    std::fs::create_dir(&user).unwrap();
+    std::fs::write(user.join("precious.txt"), "do not delete").unwrap();
+    let sibling = d.path().join("user-mcap");
+    std::fs::create_dir(&sibling).unwrap();
+    std::fs::write(sibling.join("keep.txt"), "sibling").unwrap();
+    let mut before = snapshot(&user);
+    before.extend(snapshot(&sibling));
+    let set = format!("pipeline.spill_dir={:?}", user.display().to_string());
+    let out = d.path().join("out");
+    let o = run(
+        &["run", "--set", PASS, "--set", &set, "--out"],
+        &[&out, &drive.join("drive.mcap")],
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(summary(&out)["points_in"].as_u64().unwrap() > 0);
+    assert_survived(&before, "mcap staging");
+    let left: Vec<_> = std::fs::read_dir(&user)
+        .unwrap()
+        .flatten()
+        .filter(|e| e.file_name().to_string_lossy().starts_with(".tessera"))
+        .collect();
+    assert!(left.is_empty(), "work directory left in the spill location");
+}

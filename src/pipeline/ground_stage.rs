@@ -2,8 +2,8 @@
 //! writes ASPRS class 2 (ground), 7 (low noise, if enabled) and the configured class for the
 //! rest.
 
-use super::stage::{Stage, TileReport};
-use crate::config::GroundSection;
+use super::stage::{Stage, StageSpec, TileReport};
+use crate::config::Config;
 use crate::error::{Error, Result};
 use crate::ground::{classify_ground, GroundClass};
 use crate::model::{RecordLayout, Tile};
@@ -16,6 +16,39 @@ pub mod class {
     /// Low point (noise).
     pub const LOW_NOISE: u8 = 7;
 }
+
+/// `[ground]` configuration section.
+#[derive(Debug, Clone, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GroundSection {
+    /// Class for non-ground points (-1 = keep the input class).
+    pub nonground_class: i64,
+    /// Filter parameters.
+    pub params: crate::ground::GroundParams,
+}
+
+impl GroundSection {
+    /// Checks the section.
+    pub fn validate(&self) -> Result<()> {
+        if !(-1..=255).contains(&self.nonground_class) {
+            return Err(Error::Config(format!(
+                "ground.nonground_class must be -1 (keep) or 0..=255, got {}",
+                self.nonground_class
+            )));
+        }
+        self.params
+            .validate()
+            .map_err(|e| Error::Config(format!("ground.params: {e}")))
+    }
+}
+
+/// Registry entry.
+pub const SPEC: StageSpec = StageSpec {
+    name: "ground",
+    requires: &[],
+    validate: |cfg: &Config| cfg.ground.validate(),
+    build: |cfg: &Config| Ok(Box::new(GroundStage::new(cfg.ground.clone()))),
+};
 
 /// Ground filtering stage.
 #[derive(Debug, Clone)]

@@ -4,7 +4,8 @@
 //! `segment`; writes the classification codes of the points of the core and a strip around it.
 
 use super::segment_stage::rgb_offset;
-use super::stage::{Stage, TileReport};
+use super::stage::{Stage, StageSpec, TileReport};
+use crate::config::Config;
 use crate::error::{Error, Result};
 use crate::label::kerbs::{classify_by_kerbs, KerbRule};
 use crate::label::{
@@ -78,17 +79,33 @@ pub struct LabelStage {
     samples: Option<Arc<SampleSet>>,
 }
 
-impl LabelStage {
-    /// Builds the stage, loading the training samples once.
-    pub fn new(section: LabelSection) -> Result<Self> {
-        let g = &section.ground;
+impl LabelSection {
+    /// Checks the section.
+    pub fn validate(&self) -> Result<()> {
+        let g = &self.ground;
         let positive = g.radius_m.is_finite() && g.radius_m > 0.0;
-        let non_negative = section.buffer_m.is_finite() && section.buffer_m >= 0.0;
+        let non_negative = self.buffer_m.is_finite() && self.buffer_m >= 0.0;
         if g.k < 3 || !positive || !non_negative {
             return Err(Error::Config(
                 "label: ground.k must be >= 3, ground.radius_m > 0 and buffer_m >= 0".into(),
             ));
         }
+        Ok(())
+    }
+}
+
+/// Registry entry: ground subclasses need the ground filter's classes.
+pub const SPEC: StageSpec = StageSpec {
+    name: "label",
+    requires: &["ground"],
+    validate: |cfg: &Config| cfg.label.validate(),
+    build: |cfg: &Config| Ok(Box::new(LabelStage::new(cfg.label.clone())?)),
+};
+
+impl LabelStage {
+    /// Builds the stage, loading the training samples once.
+    pub fn new(section: LabelSection) -> Result<Self> {
+        section.validate()?;
         let samples = if section.samples.is_empty() {
             None
         } else {

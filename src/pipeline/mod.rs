@@ -15,6 +15,7 @@ pub mod ground_stage;
 pub mod label_stage;
 pub mod segment_stage;
 pub mod stage;
+pub mod stats_stage;
 
 use crate::config::Config;
 use crate::error::{Error, Result};
@@ -30,7 +31,8 @@ use crate::tiling::{
 use budget::BudgetPlan;
 use collect::{Collector, Processed, TileMeta, TileOutput, ToWriter};
 use crossbeam_channel::{bounded, Receiver, Sender};
-pub use stage::{build_stages, Stage, StatsStage, TileReport};
+pub use stage::{build_stages, Stage, StageSpec, TileReport, REGISTRY};
+pub use stats_stage::StatsStage;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Mutex;
@@ -186,7 +188,7 @@ pub fn run_with_stages(
             context_m: s.context_m(),
         })
         .collect();
-    let segments = stages.iter().any(|s| s.name() == "segment");
+    let segments = stages.iter().any(|s| s.assigns_segment_ids());
     let stitching = segments && cfg.stitch.enabled;
     let mut plan = BudgetPlan::with_stages(
         cfg.pipeline.memory_budget_mb,

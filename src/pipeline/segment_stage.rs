@@ -6,7 +6,8 @@
 //! Segment ids are local to a tile (1..=N in the tile's canonical order) until cross-tile
 //! stitching assigns global ids.
 
-use super::stage::{Stage, TileReport};
+use super::stage::{Stage, StageSpec, TileReport};
+use crate::config::Config;
 use crate::error::{Error, Result};
 use crate::model::{RecordLayout, SegmentRow, Tile};
 use crate::segment::{segment_at, SegParams};
@@ -51,19 +52,34 @@ pub struct SegmentStage {
     section: SegmentSection,
 }
 
+impl SegmentSection {
+    /// Checks the section.
+    pub fn validate(&self) -> Result<()> {
+        self.params
+            .validate()
+            .map_err(|e| Error::Config(format!("segment.params: {e}")))?;
+        if !(self.buffer_m.is_finite() && self.buffer_m >= 0.0) {
+            return Err(Error::Config(format!(
+                "segment.buffer_m must be >= 0, got {}",
+                self.buffer_m
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// Registry entry.
+pub const SPEC: StageSpec = StageSpec {
+    name: "segment",
+    requires: &[],
+    validate: |cfg: &Config| cfg.segment.validate(),
+    build: |cfg: &Config| Ok(Box::new(SegmentStage::new(cfg.segment.clone())?)),
+};
+
 impl SegmentStage {
     /// Builds the stage from its configuration section.
     pub fn new(section: SegmentSection) -> Result<Self> {
-        section
-            .params
-            .validate()
-            .map_err(|e| Error::Config(format!("segment.params: {e}")))?;
-        if !(section.buffer_m.is_finite() && section.buffer_m >= 0.0) {
-            return Err(Error::Config(format!(
-                "segment.buffer_m must be >= 0, got {}",
-                section.buffer_m
-            )));
-        }
+        section.validate()?;
         Ok(SegmentStage { section })
     }
 }
@@ -88,6 +104,9 @@ pub fn rgb_offset(layout: &RecordLayout) -> Option<usize> {
 impl Stage for SegmentStage {
     fn name(&self) -> &'static str {
         "segment"
+    }
+    fn assigns_segment_ids(&self) -> bool {
+        true
     }
     fn context_m(&self) -> Option<f64> {
         Some(self.section.buffer_m)

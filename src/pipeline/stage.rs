@@ -1,6 +1,7 @@
 //! The worker-stage interface: ground, segmentation, labelling plug in here.
 
-use crate::error::Result;
+use crate::config::Config;
+use crate::error::{Error, Result};
 use crate::model::{RecordLayout, Tile};
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -47,6 +48,11 @@ pub trait Stage: Send + Sync {
     fn far_cells(&self) -> Option<crate::tiling::FarCells> {
         None
     }
+    /// Whether the stage assigns per-point segment ids (written as the `segment_id`
+    /// attribute and stitched across tiles).
+    fn assigns_segment_ids(&self) -> bool {
+        false
+    }
     /// Largest classification code the stage may write (codes above 31 need point formats
     /// 6–10; the pipeline then upgrades legacy inputs unless the user chose a format).
     fn max_class_code(&self) -> u8 {
@@ -61,77 +67,84 @@ pub trait Stage: Send + Sync {
     ) -> Result<()>;
 }
 
-/// Pass-through stage: leaves points untouched and reports per-tile statistics.
-#[derive(Debug, Default)]
-pub struct StatsStage;
+/// One entry of the stage registry ([`REGISTRY`], the only list of stages): how to check the
+/// stage's configuration section and how to build it. A stage's section, its checks, its
+/// memory model and what it writes all live in its own module.
+#[derive(Clone, Copy)]
+pub struct StageSpec {
+    /// Name used in `stages.run` and in reports.
+    pub name: &'static str,
+    /// Stages that must run, earlier in `stages.run`, when this one runs.
+    pub requires: &'static [&'static str],
+    /// Checks the stage's configuration section. Called for every registered stage when the
+    /// configuration is loaded, whether or not the stage runs, so a wrong value is reported
+    /// before any input is read.
+    pub validate: fn(&Config) -> Result<()>,
+    /// Builds the stage from its section (may load side files, e.g. training samples).
+    pub build: fn(&Config) -> Result<Box<dyn Stage>>,
+}
 
-impl Stage for StatsStage {
-    fn name(&self) -> &'static str {
-        "stats"
-    }
-    fn bytes_per_point(&self) -> usize {
-        0
-    }
-    fn needs_context(&self) -> bool {
-        false
-    }
-    fn process(
-        &self,
-        tile: &mut Tile,
-        layout: &RecordLayout,
-        report: &mut TileReport,
-    ) -> Result<()> {
-        let core = &tile.xyz[..tile.n_core];
-        let (mut zmin, mut zmax, mut zsum) = (f64::INFINITY, f64::NEG_INFINITY, 0.0);
-        for p in core {
-            zmin = zmin.min(p[2]);
-            zmax = zmax.max(p[2]);
-            zsum += p[2];
-        }
-        let mut counts = [0u64; 256];
-        for rec in tile
-            .records
-            .chunks_exact(layout.record_len)
-            .take(tile.n_core)
-        {
-            counts[layout.classification(rec) as usize] += 1;
-        }
-        let classes: BTreeMap<u8, u64> = (0..=255u8).zip(counts).filter(|&(_, n)| n > 0).collect();
-        let n = core.len().max(1) as f64;
-        report.stats.insert(
-            "stats".into(),
-            serde_json::json!({
-                "core_points": tile.n_core,
-                "buffer_points": tile.len() - tile.n_core,
-                "z_min": zmin, "z_max": zmax, "z_mean": zsum / n,
-                "density_per_m2": tile.n_core as f64 / (tile.core.width() * tile.core.width()),
-                "classes": classes,
-            }),
-        );
-        Ok(())
+impl std::fmt::Debug for StageSpec {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("StageSpec")
+            .field("name", &self.name)
+            .field("requires", &self.requires)
+            .finish()
     }
 }
 
+/// Every stage tessera knows, in no particular order. Adding a stage: its module plus one
+/// line here.
+pub const REGISTRY: &[StageSpec] = &[
+    super::stats_stage::SPEC,
+    super::ground_stage::SPEC,
+    super::segment_stage::SPEC,
+    super::label_stage::SPEC,
+];
+
+fn spec(name: &str) -> Result<&'static StageSpec> {
+    REGISTRY.iter().find(|s| s.name == name).ok_or_else(|| {
+        let known: Vec<&str> = REGISTRY.iter().map(|s| s.name).collect();
+        Error::Config(format!(
+            "stages.run: unknown stage \"{name}\" (known: {})",
+            known.join(", ")
+        ))
+    })
+}
+
+/// Checks every registered stage's section, and the stage list: known names, each at most
+/// once, prerequisites earlier in the list.
+pub fn validate_stages(cfg: &Config) -> Result<()> {
+    for s in REGISTRY {
+        (s.validate)(cfg)?;
+    }
+    let run = &cfg.stages.run;
+    if run.is_empty() {
+        return Err(Error::Config(
+            "stages.run must name at least one stage".into(),
+        ));
+    }
+    for (i, name) in run.iter().enumerate() {
+        let s = spec(name)?;
+        if run[..i].contains(name) {
+            return Err(Error::Config(format!("stages.run names \"{name}\" twice")));
+        }
+        for need in s.requires {
+            if !run[..i].iter().any(|r| r == need) {
+                return Err(Error::Config(format!(
+                    "stages.run: \"{name}\" needs \"{need}\" to run before it"
+                )));
+            }
+        }
+    }
+    Ok(())
+}
+
 /// Builds the stages named in `cfg.stages.run`, each from its own section.
-pub fn build_stages(cfg: &crate::config::Config) -> Result<Vec<Box<dyn Stage>>> {
+pub fn build_stages(cfg: &Config) -> Result<Vec<Box<dyn Stage>>> {
     cfg.stages
         .run
         .iter()
-        .map(|n| match n.as_str() {
-            "stats" => Ok(Box::new(StatsStage) as Box<dyn Stage>),
-            "ground" => Ok(
-                Box::new(super::ground_stage::GroundStage::new(cfg.ground.clone()))
-                    as Box<dyn Stage>,
-            ),
-            "segment" => Ok(Box::new(super::segment_stage::SegmentStage::new(
-                cfg.segment.clone(),
-            )?) as Box<dyn Stage>),
-            "label" => Ok(
-                Box::new(super::label_stage::LabelStage::new(cfg.label.clone())?) as Box<dyn Stage>,
-            ),
-            other => Err(crate::error::Error::Config(format!(
-                "stages.run: unknown stage \"{other}\" (known: ground, segment, label, stats)"
-            ))),
-        })
+        .map(|n| (spec(n)?.build)(cfg))
         .collect()
 }
