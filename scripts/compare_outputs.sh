@@ -16,6 +16,11 @@ DATA=${TESSERA_DATA:-../shared/data}
 rm -rf "$W"; mkdir -p "$W"
 git worktree add -f --detach "$W/old-src" "$OLD" > /dev/null
 trap 'git worktree remove --force "$W/old-src" 2>/dev/null || true' EXIT
+# A cold release build takes ~14 min here; SEED_TARGET=target copies the current release
+# artefacts first so only the tessera crate itself is rebuilt for the old commit.
+if [ -n "${SEED_TARGET:-}" ] && [ -d "$SEED_TARGET/release" ]; then
+  mkdir -p "$W/old-target"; cp -r "$SEED_TARGET/release" "$W/old-target/"
+fi
 echo "== building $OLD and the working tree (release)"
 cargo build --release -q --manifest-path "$W/old-src/Cargo.toml" --target-dir "$W/old-target"
 cargo build --release -q
@@ -35,8 +40,11 @@ for c in "${CASES[@]}"; do
   "$OLD_BIN" -q run "$input" --out "$W/old/$name" $opts
   # shellcheck disable=SC2086
   "$NEW_BIN" -q run "$input" --out "$W/new/$name" $opts
-  files=$(cd "$W/old/$name" && ls -- *.la[sz] *.segments.tsv 2>/dev/null | sort)
-  newfiles=$(cd "$W/new/$name" && ls -- *.la[sz] *.segments.tsv 2>/dev/null | sort)
+  # (find, not a glob: a run without segmentation writes no *.segments.tsv, and a failed
+  # glob must not end the script under pipefail.)
+  list() { (cd "$1" && find . -maxdepth 1 -type f \( -name '*.la[sz]' -o -name '*.segments.tsv' \) -printf '%f\n' | sort); }
+  files=$(list "$W/old/$name")
+  newfiles=$(list "$W/new/$name")
   if [ "$files" != "$newfiles" ]; then
     echo "$name: DIFFERENT file sets"; status=1; continue
   fi
