@@ -42,15 +42,20 @@ pub enum Error {
     #[error("memory budget infeasible: {0}")]
     Budget(String),
     /// A processing stage failed on a tile.
-    #[error("tile {tile}: stage {stage}: {reason}")]
+    #[error("tile {tile}: stage {stage}: {source}")]
     Stage {
         /// Tile name.
         tile: String,
         /// Stage name.
         stage: &'static str,
-        /// What went wrong.
-        reason: String,
+        /// What went wrong (the stage's own error, kept as the cause).
+        #[source]
+        source: Box<dyn std::error::Error + Send + Sync>,
     },
+    /// The run stopped because another part of the pipeline failed first; that failure is
+    /// the one reported (this one only unwinds the part that noticed).
+    #[error("run cancelled after another failure")]
+    Cancelled,
     /// Cross-tile stitching failed (an invariant of the message flow or a summary).
     #[error(transparent)]
     Stitch(#[from] crate::stitch::StitchError),

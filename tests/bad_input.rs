@@ -235,3 +235,20 @@ fn config_errors_come_before_any_input_is_read() {
         assert!(!d.path().join("out").exists(), "{set}: output created");
     }
 }
+
+/// An error is printed with its causes once each (the library's messages already name their
+/// cause; printing the chain used to repeat it: "x.las: No such file …: No such file …").
+#[test]
+fn error_causes_are_printed_once() {
+    let d = tempfile::tempdir().unwrap();
+    let missing = d.path().join("missing.las");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_tessera"))
+        .args(["-q", "info"])
+        .arg(&missing)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("missing.las"), "{err}");
+    assert_eq!(err.matches("No such file").count(), 1, "{err}");
+}

@@ -220,7 +220,7 @@ impl Stage for SlowFailing {
             return Err(tessera::Error::Stage {
                 tile: tile.name.to_string(),
                 stage: "slow_failing",
-                reason: "injected".into(),
+                source: "injected".into(),
             });
         }
         Ok(())

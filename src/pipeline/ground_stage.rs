@@ -89,7 +89,7 @@ impl Stage for GroundStage {
             classify_ground(&tile.xyz, &self.section.params).map_err(|e| Error::Stage {
                 tile: tile.name.to_string(),
                 stage: "ground",
-                reason: e.to_string(),
+                source: Box::new(e),
             })?;
         let keep = self.section.nonground_class < 0;
         let other = self.section.nonground_class.clamp(0, 255) as u8;

@@ -86,7 +86,8 @@ impl StitchCtx {
     }
 }
 
-/// Shared failure state: the first error wins; everyone else stops quietly.
+/// Shared failure state: the first real error wins (a [`Error::Cancelled`] only until a real
+/// one arrives); everyone else stops quietly.
 struct Failure {
     first: Mutex<Option<Error>>,
     flag: AtomicBool,
@@ -95,7 +96,12 @@ struct Failure {
 impl Failure {
     fn set(&self, e: Error) {
         let mut g = self.first.lock().unwrap_or_else(|p| p.into_inner());
-        if g.is_none() {
+        let replace = match &*g {
+            None => true,
+            Some(Error::Cancelled) => !matches!(e, Error::Cancelled),
+            Some(_) => false,
+        };
+        if replace {
             *g = Some(e);
         }
         self.flag.store(true, Ordering::SeqCst);
@@ -341,7 +347,7 @@ fn run_inner(ctx: &RunCtx, out: &mut OutputDir, progress: ProgressFn) -> Result<
                     let spare = || free_rx.try_recv().ok();
                     read_file_chunks(f, layout, plan.chunk_points, spare, |first, records| {
                         if failure.failed() {
-                            return Err(Error::Internal("cancelled".into()));
+                            return Err(Error::Cancelled);
                         }
                         let n = records.len() as u64;
                         chunk_tx
@@ -350,14 +356,14 @@ fn run_inner(ctx: &RunCtx, out: &mut OutputDir, progress: ProgressFn) -> Result<
                                 first,
                                 records,
                             })
-                            .map_err(|_| Error::Internal("cancelled".into()))?;
+                            .map_err(|_| Error::Cancelled)?;
                         let done = read_points.fetch_add(n, Ordering::Relaxed) + n;
                         progress(done, set.total_points);
                         Ok(())
                     })?;
                     chunk_tx
                         .send(ReadMsg::FileDone(fi))
-                        .map_err(|_| Error::Internal("cancelled".into()))?;
+                        .map_err(|_| Error::Cancelled)?;
                 }
                 Ok(())
             })();

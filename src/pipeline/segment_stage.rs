@@ -164,7 +164,7 @@ impl Stage for SegmentStage {
         .map_err(|e| Error::Stage {
             tile: tile.name.to_string(),
             stage: "segment",
-            reason: e.to_string(),
+            source: Box::new(e),
         })?;
         let mut core_n = vec![0usize; out.segments.len() + 1];
         for &l in &out.labels[..tile.n_core] {
