@@ -280,7 +280,16 @@ fn check_resolution(
     keys: &[[i64; 3]],
     xyz: &[[f64; 3]],
 ) -> Result<()> {
-    let mut order: Vec<u32> = (0..keys.len() as u32).collect();
+    // u32 indices halve this sort's memory; larger point sets are refused, not wrapped.
+    let n = u32::try_from(keys.len()).map_err(|_| {
+        Error::Data(format!(
+            "{}: {} points is more than one evaluation can match (at most {})",
+            path.display(),
+            keys.len(),
+            u32::MAX
+        ))
+    })?;
+    let mut order: Vec<u32> = (0..n).collect();
     order.sort_unstable_by_key(|&i| keys[i as usize]);
     let mut merged = 0usize;
     for run in order.chunk_by(|&a, &b| keys[a as usize] == keys[b as usize]) {
