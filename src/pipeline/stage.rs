@@ -148,3 +148,30 @@ pub fn build_stages(cfg: &Config) -> Result<Vec<Box<dyn Stage>>> {
         .map(|n| (spec(n)?.build)(cfg))
         .collect()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn registry_names_are_unique_prerequisites_registered_and_stages_named_as_listed() {
+        let cfg = Config::defaults().unwrap();
+        for (i, s) in REGISTRY.iter().enumerate() {
+            assert!(
+                REGISTRY[..i].iter().all(|o| o.name != s.name),
+                "{} registered twice",
+                s.name
+            );
+            for need in s.requires {
+                assert!(
+                    REGISTRY.iter().any(|o| o.name == *need),
+                    "{} requires unregistered {need}",
+                    s.name
+                );
+            }
+            // The built stage reports the name it is registered (and configured) under.
+            let built = (s.build)(&cfg).unwrap();
+            assert_eq!(built.name(), s.name);
+        }
+    }
+}
