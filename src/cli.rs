@@ -292,6 +292,16 @@ pub enum EvalCommand {
     },
 }
 
+/// A comma-separated list of values (spaces around items allowed); the error names the item.
+fn parse_list<T: FromStr>(s: &str) -> Result<Vec<T>, String>
+where
+    T::Err: std::fmt::Display,
+{
+    s.split(',')
+        .map(|x| x.trim().parse::<T>().map_err(|e| format!("{x}: {e}")))
+        .collect()
+}
+
 /// `--map TO=FROM,...`: result codes mapped onto one code before scoring.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct ClassMap {
@@ -308,11 +318,10 @@ impl FromStr for ClassMap {
             .split_once('=')
             .ok_or_else(|| "expected TO=FROM,...".to_string())?;
         let to = to.trim().parse::<u8>().map_err(|e| format!("{to}: {e}"))?;
-        let from = from
-            .split(',')
-            .map(|x| x.trim().parse::<u8>().map_err(|e| format!("{x}: {e}")))
-            .collect::<Result<Vec<_>, _>>()?;
-        Ok(ClassMap { to, from })
+        Ok(ClassMap {
+            to,
+            from: parse_list(from)?,
+        })
     }
 }
 
@@ -323,11 +332,7 @@ pub struct XRange(pub f64, pub f64);
 impl FromStr for XRange {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
-        let v = s
-            .split(',')
-            .map(|x| x.trim().parse::<f64>().map_err(|e| format!("{x}: {e}")))
-            .collect::<Result<Vec<_>, _>>()?;
-        match v[..] {
+        match parse_list::<f64>(s)?[..] {
             [a, b] if a.is_finite() && b.is_finite() && a < b => Ok(XRange(a, b)),
             _ => Err("expected X0,X1 with X0 < X1".into()),
         }
@@ -352,10 +357,7 @@ impl FromStr for Restrict {
         if field.trim().is_empty() {
             return Err("expected FIELD=V1,V2,... (no field name)".into());
         }
-        let values = v
-            .split(',')
-            .map(|x| x.trim().parse::<u32>().map_err(|e| format!("{x}: {e}")))
-            .collect::<Result<Vec<_>, _>>()?;
+        let values = parse_list(v)?;
         Ok(Restrict {
             field: field.trim().to_string(),
             values,

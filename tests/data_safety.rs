@@ -12,7 +12,7 @@ fn tessera() -> Command {
     Command::new(env!("CARGO_BIN_EXE_tessera"))
 }
 
-fn run(args: &[&str], extra: &[&Path]) -> Output {
+fn run<S: AsRef<std::ffi::OsStr>>(args: &[S], extra: &[&Path]) -> Output {
     let mut c = tessera();
     c.arg("-q");
     for a in args {
@@ -22,6 +22,27 @@ fn run(args: &[&str], extra: &[&Path]) -> Output {
         c.arg(p);
     }
     c.output().unwrap()
+}
+
+/// Arguments of a pass-through `run` (with `--overwrite` if asked) into tiles of `tile_m`
+/// metres without buffers, with further `--set`s, ending in `--out`: the output directory and
+/// the inputs follow.
+fn tiled(tile_m: u32, overwrite: bool, sets: &[&str]) -> Vec<String> {
+    let mut v = vec!["run".to_string()];
+    if overwrite {
+        v.push("--overwrite".into());
+    }
+    let base = [
+        PASS.to_string(),
+        format!("tiling.tile_size_m={tile_m}"),
+        "tiling.buffer_m=0".to_string(),
+    ];
+    for set in base.into_iter().chain(sets.iter().map(|s| s.to_string())) {
+        v.push("--set".into());
+        v.push(set);
+    }
+    v.push("--out".into());
+    v
 }
 
 fn stderr(o: &Output) -> String {
@@ -313,19 +334,7 @@ fn reruns_never_mix_outputs_and_concurrent_runs_refuse() {
     let f = d.path().join("a.las");
     write_points(&f, 30_000, 0.0, (1, 2), 1);
     let out = d.path().join("out");
-    let o = run(
-        &[
-            "run",
-            "--set",
-            PASS,
-            "--set",
-            "tiling.tile_size_m=10",
-            "--set",
-            "tiling.buffer_m=0",
-            "--out",
-        ],
-        &[&out, &f],
-    );
+    let o = run(&tiled(10, false, &[]), &[&out, &f]);
     assert!(o.status.success(), "{}", stderr(&o));
     let first = common::tiles_in(&out).len();
     assert!(first >= 9, "{first} tiles");
@@ -339,19 +348,7 @@ fn reruns_never_mix_outputs_and_concurrent_runs_refuse() {
             .collect()
     };
     let before = files(&out);
-    let o = run(
-        &[
-            "run",
-            "--set",
-            PASS,
-            "--set",
-            "tiling.tile_size_m=25",
-            "--set",
-            "tiling.buffer_m=0",
-            "--out",
-        ],
-        &[&out, &f],
-    );
+    let o = run(&tiled(25, false, &[]), &[&out, &f]);
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
     assert!(stderr(&o).contains("--overwrite"), "{}", stderr(&o));
     assert!(
@@ -359,20 +356,7 @@ fn reruns_never_mix_outputs_and_concurrent_runs_refuse() {
         "a refused run changed the output directory"
     );
     // With --overwrite: exactly the new run's tiles, and the summary lists the files present.
-    let o = run(
-        &[
-            "run",
-            "--overwrite",
-            "--set",
-            PASS,
-            "--set",
-            "tiling.tile_size_m=25",
-            "--set",
-            "tiling.buffer_m=0",
-            "--out",
-        ],
-        &[&out, &f],
-    );
+    let o = run(&tiled(25, true, &[]), &[&out, &f]);
     assert!(o.status.success(), "{}", stderr(&o));
     let tiles: Vec<String> = common::tiles_in(&out)
         .iter()
@@ -800,22 +784,9 @@ fn full_disk_fails_cleanly() {
         )),
     ] {
         let out = mnt.join("out");
-        let mut args = vec![
-            "run",
-            "--set",
-            PASS,
-            "--set",
-            "output.format=\"las\"",
-            "--set",
-            "tiling.tile_size_m=10",
-            "--set",
-            "tiling.buffer_m=0",
-        ];
-        if let Some(s) = &spill_set {
-            args.extend(["--set", s.as_str()]);
-        }
-        args.push("--out");
-        let o = run(&args, &[&out, &f]);
+        let mut sets = vec!["output.format=\"las\""];
+        sets.extend(spill_set.as_deref());
+        let o = run(&tiled(10, false, &sets), &[&out, &f]);
         let err = stderr(&o);
         assert_eq!(o.status.code(), Some(1), "{spill_set:?}: {err}");
         assert!(err.to_lowercase().contains("no space"), "{err}");
@@ -842,32 +813,11 @@ fn killed_run_leaves_no_lying_summary() {
     let f = d.path().join("big.laz");
     write_points(&f, 1_500_000, 0.0, (1, 2), 1);
     let out = d.path().join("out");
-    let small = [
-        "--set",
-        PASS,
-        "--set",
-        "tiling.tile_size_m=5",
-        "--set",
-        "tiling.buffer_m=0",
-    ];
-    let mut args = vec!["run"];
-    args.extend(small);
-    args.push("--out");
-    let o = run(&args, &[&out, &f]);
+    let o = run(&tiled(5, false, &[]), &[&out, &f]);
     assert!(o.status.success(), "{}", stderr(&o));
     let mut child = tessera()
-        .args([
-            "-q",
-            "run",
-            "--overwrite",
-            "--set",
-            PASS,
-            "--set",
-            "tiling.tile_size_m=2",
-            "--set",
-            "tiling.buffer_m=0",
-            "--out",
-        ])
+        .arg("-q")
+        .args(tiled(2, true, &[]))
         .arg(&out)
         .arg(&f)
         .spawn()
@@ -918,20 +868,7 @@ fn killed_run_leaves_no_lying_summary() {
         assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
         assert!(stderr(&o).contains("did not finish"), "{}", stderr(&o));
     }
-    let o = run(
-        &[
-            "run",
-            "--overwrite",
-            "--set",
-            PASS,
-            "--set",
-            "tiling.tile_size_m=10",
-            "--set",
-            "tiling.buffer_m=0",
-            "--out",
-        ],
-        &[&out, &f],
-    );
+    let o = run(&tiled(10, true, &[]), &[&out, &f]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(consistent(&out));
     assert_eq!(summary(&out)["points_out"], 1_500_000);
