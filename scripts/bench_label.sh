@@ -5,7 +5,7 @@
 #    command wall time and peak RSS (/usr/bin/time).
 # 2. A >= 20 M point synthetic street (SCENE_M metres, default 1000), ground + segment + label
 #    with training samples from its first 50 m: labelling-stage points/s per worker (points
-#    the stage labels — ground and non-ground within the core + label.buffer_m zone — over the
+#    the stage labels — ground and non-ground within the core + label.context_m zone — over the
 #    stage's seconds summed over workers), whole-run points/s, wall time and peak RSS.
 # Usage: scripts/bench_label.sh     env: SCENE_M (default 1000), SKIP_BIG=1 (demo only)
 set -euo pipefail

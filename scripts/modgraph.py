@@ -29,11 +29,10 @@ LAYERS = [
     ("io", ["crate::io", "crate::tiling"]),
     ("algorithms", ["crate::ground", "crate::segment", "crate::label", "crate::stitch",
                     "crate::thin", "crate::synth", "crate::eval"]),
-    ("stages", ["crate::pipeline::budget", "crate::pipeline::ground_stage",
-                "crate::pipeline::segment_stage", "crate::pipeline::label_stage",
-                "crate::pipeline::stats_stage", "crate::pipeline::stage"]),
+    ("stages", ["crate::budget", "crate::stages"]),
     ("config", ["crate::config"]),
-    ("run", ["crate::pipeline", "crate::report"]),
+    ("report", ["crate::report"]),
+    ("run", ["crate::pipeline"]),
     ("front", ["crate::cli", "crate"]),
 ]
 

@@ -1,6 +1,11 @@
 //! Configuration: `config/default.toml` (compiled in, the single source of defaults), overlaid
 //! by an optional user file, overlaid by `--set section.key=value` pairs, then validated once.
-//! Each stage receives only its own `*Params` section.
+//!
+//! This module only composes sections: the run's own (`[tiling]`, `[pipeline]`, `[output]`,
+//! `[stages]`), those of I/O and stitching, and the stage sections (`[ground]`, `[segment]`,
+//! `[label]`, …), which it keeps as written and hands to the stage of that name: each stage
+//! parses and checks its own (see [`crate::stages`]). All of them are checked here, at load,
+//! whether or not the stage runs.
 
 use crate::error::{Error, Result};
 use serde::Deserialize;
@@ -61,8 +66,6 @@ pub struct StagesParams {
     pub run: Vec<String>,
 }
 
-pub use crate::pipeline::ground_stage::GroundSection;
-
 /// The whole validated configuration.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -75,17 +78,14 @@ pub struct Config {
     pub output: OutputParams,
     /// `[stages]`
     pub stages: StagesParams,
-    /// `[ground]`
-    pub ground: GroundSection,
-    /// `[segment]`
-    pub segment: crate::pipeline::segment_stage::SegmentSection,
-    /// `[label]`
-    #[serde(default)]
-    pub label: crate::pipeline::label_stage::LabelSection,
     /// `[mcap]`
     pub mcap: crate::io::mcap::McapParams,
     /// `[stitch]`
     pub stitch: crate::stitch::StitchParams,
+    /// The registered stages' sections as written (`[ground]`, `[segment]`, …), keyed by
+    /// stage name; each is parsed and checked by its stage.
+    #[serde(skip)]
+    pub sections: toml::Table,
 }
 
 impl Config {
@@ -103,9 +103,24 @@ impl Config {
         for item in overrides {
             apply_override(&mut root, item)?;
         }
-        let cfg: Config = root
+        // Stage sections go to their stages; the rest must be the run's own sections.
+        let mut sections = toml::Table::new();
+        if let toml::Value::Table(t) = &mut root {
+            let names: Vec<String> = t
+                .keys()
+                .filter(|k| crate::stages::registry::is_stage_section(k))
+                .cloned()
+                .collect();
+            for k in names {
+                if let Some(v) = t.remove(&k) {
+                    sections.insert(k, v);
+                }
+            }
+        }
+        let mut cfg: Config = root
             .try_into()
             .map_err(|e: toml::de::Error| Error::Config(e.to_string()))?;
+        cfg.sections = sections;
         cfg.validate()?;
         Ok(cfg)
     }
@@ -158,10 +173,10 @@ impl Config {
                 "tiling.min_tile_size_m must be positive".into(),
             ));
         }
-        if self.pipeline.memory_budget_mb > crate::pipeline::budget::MAX_BUDGET_BYTES >> 20 {
+        if self.pipeline.memory_budget_mb > crate::budget::MAX_BUDGET_BYTES >> 20 {
             return Err(Error::Config(format!(
                 "pipeline.memory_budget_mb must be at most {} (1 PiB), got {}",
-                crate::pipeline::budget::MAX_BUDGET_BYTES >> 20,
+                crate::budget::MAX_BUDGET_BYTES >> 20,
                 self.pipeline.memory_budget_mb
             )));
         }
@@ -181,7 +196,23 @@ impl Config {
         self.mcap.validate()?;
         self.stitch.validate().map_err(Error::Config)?;
         // Every stage's own section (whether or not it runs) and the stage list.
-        crate::pipeline::stage::validate_stages(self)
+        crate::stages::validate_stages(&self.stages.run, &self.sections)
+    }
+
+    /// The stages named in `stages.run`, in order, each built from its own section.
+    pub fn build_stages(&self) -> Result<Vec<Box<dyn crate::stages::Stage>>> {
+        crate::stages::build_stages(&self.stages.run, &self.sections)
+    }
+
+    /// The section of stage `name`, parsed into the stage's section type (e.g.
+    /// [`crate::stages::ground::GroundSection`]).
+    pub fn stage_section<T: serde::de::DeserializeOwned>(&self, name: &str) -> Result<T> {
+        let raw = self
+            .sections
+            .get(name)
+            .cloned()
+            .unwrap_or_else(|| toml::Value::Table(toml::Table::new()));
+        crate::stages::parse_section(name, &raw)
     }
 }
 
@@ -248,13 +279,16 @@ mod tests {
     fn ground_presets_in_config_match_the_library() {
         // config/ is the single source of defaults for runs; the library's constructors must
         // not drift from it (the ISPRS/KITTI gates test the library values).
+        use crate::stages::ground::GroundSection;
         let c = Config::defaults().unwrap();
-        assert_eq!(c.ground.params, crate::ground::GroundParams::mobile());
+        let cg: GroundSection = c.stage_section("ground").unwrap();
+        assert_eq!(cg.params, crate::ground::GroundParams::mobile());
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("config/airborne.toml");
         let a = Config::load(Some(&path), &[]).unwrap();
-        assert_eq!(a.ground.params, crate::ground::GroundParams::default());
-        assert!(a.tiling.buffer_m >= a.ground.params.seed_cell_m);
-        assert!(c.tiling.buffer_m >= c.ground.params.seed_cell_m);
+        let ag: GroundSection = a.stage_section("ground").unwrap();
+        assert_eq!(ag.params, crate::ground::GroundParams::default());
+        assert!(a.tiling.buffer_m >= ag.params.seed_cell_m);
+        assert!(c.tiling.buffer_m >= cg.params.seed_cell_m);
     }
 
     #[test]
@@ -279,8 +313,8 @@ mod tests {
         };
         // Sections of stages that do not run are still checked.
         let only_stats = "stages.run=[\"stats\"]";
-        assert!(err(&[only_stats, "segment.buffer_m=-1"]).contains("segment.buffer_m"));
-        assert!(err(&[only_stats, "label.buffer_m=-1"]).contains("label"));
+        assert!(err(&[only_stats, "segment.context_m=-1"]).contains("segment.context_m"));
+        assert!(err(&[only_stats, "label.context_m=-1"]).contains("label"));
         assert!(err(&[only_stats, "ground.nonground_class=300"]).contains("nonground_class"));
         // The list: known names, once each, prerequisites first.
         assert!(err(&["stages.run=[\"grund\"]"]).contains("unknown stage \"grund\""));
@@ -288,6 +322,13 @@ mod tests {
         assert!(err(&["stages.run=[\"label\"]"]).contains("needs \"ground\""));
         assert!(err(&["stages.run=[\"label\", \"ground\"]"]).contains("needs \"ground\""));
         assert!(err(&["stages.run=[]"]).contains("at least one"));
+        // A stage's section rejects unknown keys and names itself.
+        let file = std::env::temp_dir().join(format!("tessera-cfg-{}.toml", std::process::id()));
+        std::fs::write(&file, "[segment.params]\nnope = 1\n").unwrap();
+        let e = Config::load(Some(&file), &[]).unwrap_err().to_string();
+        let _ = std::fs::remove_file(&file);
+        assert!(e.contains("[segment]") && e.contains("nope"), "{e}");
+        assert!(err(&["stages.run=[\"stats\"]", "bogus.x=1"]).contains("unknown"));
         let ok = Config::load(None, &["stages.run=[\"ground\", \"label\"]".into()]);
         assert!(ok.is_ok());
     }

@@ -58,7 +58,7 @@ pub enum Error {
     Cancelled,
     /// Cross-tile stitching failed (an invariant of the message flow or a summary).
     #[error(transparent)]
-    Stitch(#[from] crate::stitch::StitchError),
+    Stitch(#[from] StitchError),
     /// The output directory cannot be used as it is (held by another run, or holding files
     /// tessera will not remove without being told to).
     #[error("output directory {path}: {reason}")]
@@ -108,4 +108,33 @@ impl Error {
             Error::Config(_) | Error::OutputDir { usage: true, .. }
         )
     }
+}
+
+/// Errors of the stitcher: violated invariants of the message flow or of a summary (bugs or
+/// corrupted state, never user input), reported instead of writing wrong ids. Defined here,
+/// below the stitcher, so that I/O and the error type need not know the stitcher.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum StitchError {
+    /// A tile arrived for a cell the tiler never released.
+    #[error("stitch: tile {tile} arrived for cell {cell:?}, which was not released")]
+    UnknownCell {
+        /// Tile name.
+        tile: String,
+        /// Its cell.
+        cell: crate::model::CellKey,
+    },
+    /// A summary is inconsistent with its tile.
+    #[error("stitch: tile {tile}: {reason}")]
+    BadSummary {
+        /// Tile name.
+        tile: String,
+        /// What is wrong.
+        reason: String,
+    },
+    /// The run ended with cells that never completed.
+    #[error("stitch: {0} cell(s) never completed (first {1:?})")]
+    Incomplete(usize, crate::model::CellKey),
+    /// A segment id does not fit the output attribute.
+    #[error("stitch: segment id {0} does not fit the 32-bit segment_id attribute")]
+    IdOverflow(u64),
 }

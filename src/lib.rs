@@ -4,17 +4,21 @@
 #![deny(missing_docs)]
 #![deny(unsafe_code)]
 
+pub mod budget;
 pub mod cli;
 pub mod config;
 pub mod error;
 pub mod eval;
+pub mod geom;
 pub mod ground;
 pub mod io;
 pub mod label;
 pub mod model;
 pub mod pipeline;
 pub mod report;
+pub mod rng;
 pub mod segment;
+pub mod stages;
 pub mod stitch;
 pub mod synth;
 pub mod sys;

@@ -11,6 +11,9 @@ use las::{Transform, Vector};
 use serde::Serialize;
 use std::fmt;
 
+/// A grid cell (column, row): the unit the tiler releases; quadtree leaves share their cell.
+pub type CellKey = (i64, i64);
+
 /// An axis-aligned rectangle in the xy plane, half-open: `[x0, x1) × [y0, y1)`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Rect {
@@ -148,6 +151,22 @@ pub struct RecordLayout {
 }
 
 impl RecordLayout {
+    /// Byte offset of red in a record of this layout (green and blue follow), if it has colour.
+    pub fn rgb_offset(&self) -> Option<usize> {
+        let f = &self.format;
+        if !f.has_color {
+            return None;
+        }
+        // LAS 1.4 R15 tables 7-16: legacy formats put colour after the 20-byte core and the
+        // optional GPS time; formats 7, 8, 10 after the 30-byte extended core.
+        Some(if f.is_extended {
+            30
+        } else if f.has_gps_time {
+            28
+        } else {
+            20
+        })
+    }
     /// Builds the layout for a format and transforms.
     pub fn new(mut format: Format, transforms: Vector<Transform>) -> Self {
         format.is_compressed = false;
@@ -219,7 +238,7 @@ pub struct Tile {
     pub name: TileName,
     /// Core rectangle; the buffer zone is `core.expanded(buffer_m)`.
     pub core: Rect,
-    /// Buffer width, metres.
+    /// Buffer width (the tiling overlap around the core), metres.
     pub buffer_m: f64,
     /// Raw records, `record_len` bytes each.
     pub records: Vec<u8>,
@@ -235,16 +254,39 @@ pub struct Tile {
     pub segment_table: Vec<SegmentRow>,
 }
 
+/// One output segment of a segmentation (region growing), as tiles carry it.
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
+pub struct SegmentInfo {
+    /// Segment id (1..=N).
+    pub id: u32,
+    /// Number of points.
+    pub n: usize,
+    /// Unit normal of the least-squares plane (z ≥ 0, else y ≥ 0, else x ≥ 0).
+    pub normal: [f64; 3],
+    /// Plane offset in input coordinates: `normal · p = d`.
+    pub d: f64,
+    /// Mean input colour on an 8-bit scale (0–255), zeros without colour.
+    pub mean_rgb: [f64; 3],
+    /// RMS orthogonal distance of the members to the plane, metres.
+    pub rms: f64,
+}
+
 /// One row of a tile's segment table.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SegmentRow {
     /// The segment (id, plane, colour, all its points in core + buffer).
-    pub info: crate::segment::SegmentInfo,
+    pub info: SegmentInfo,
     /// How many of its points are core points of the tile.
     pub core_points: usize,
 }
 
 impl Tile {
+    /// The zone a stage with context `context_m` works on: the core widened by that context,
+    /// as far as the tile's buffer reaches ([`stage_context_m`]).
+    pub fn context_zone(&self, context_m: f64) -> Rect {
+        self.core
+            .expanded(stage_context_m(context_m, self.buffer_m))
+    }
     /// Total points (core + buffer).
     pub fn len(&self) -> usize {
         self.ids.len()
@@ -253,6 +295,13 @@ impl Tile {
     pub fn is_empty(&self) -> bool {
         self.ids.is_empty()
     }
+}
+
+/// The context a stage gets: what it asks for (`context_m`, beyond the core), as far as the
+/// tiling buffer (`buffer_m`, the overlap the tiles carry) reaches. The one place the two are
+/// combined; the run plan and the tiles both use it.
+pub fn stage_context_m(context_m: f64, buffer_m: f64) -> f64 {
+    context_m.min(buffer_m)
 }
 
 /// Builds the global id of point `index` of input file `file`.

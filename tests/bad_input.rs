@@ -211,7 +211,7 @@ fn usage_errors_exit_2() {
 fn config_errors_come_before_any_input_is_read() {
     let d = tempfile::tempdir().unwrap();
     for set in [
-        "segment.buffer_m=-1",
+        "segment.context_m=-1",
         "stages.run=[\"label\", \"ground\"]",
         "stages.run=[\"nope\"]",
     ] {

@@ -17,7 +17,8 @@ use std::process::Command;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use tessera::model::{RecordLayout, Tile};
-use tessera::pipeline::{build_stages, run_with_stages, Stage, TileReport};
+use tessera::pipeline::run_with_stages;
+use tessera::stages::{Stage, TileReport};
 
 struct Counting;
 
@@ -119,7 +120,7 @@ impl Stage for Measured {
         let grew = PEAK.load(Ordering::SeqCst).saturating_sub(start);
         let charged = match self.inner.context_m() {
             Some(c) => {
-                let zone = tile.core.expanded(c.min(tile.buffer_m));
+                let zone = tile.context_zone(c);
                 tile.xyz
                     .iter()
                     .filter(|p| zone.contains(p[0], p[1]))
@@ -147,7 +148,8 @@ fn measure(input: &Path, out: &Path, set: &[&str]) -> Vec<Call> {
     overrides.extend(set.iter().map(|s| s.to_string()));
     let cfg = tessera::Config::load(None, &overrides).unwrap();
     let calls = Arc::new(Mutex::new(Vec::new()));
-    let stages: Vec<Box<dyn Stage>> = build_stages(&cfg)
+    let stages: Vec<Box<dyn Stage>> = cfg
+        .build_stages()
         .unwrap()
         .into_iter()
         .map(|inner| {

@@ -7,7 +7,7 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 use tessera::model::{RecordLayout, Rect, Tile};
-use tessera::pipeline::{Stage, TileReport};
+use tessera::stages::{Stage, TileReport};
 use tessera::Config;
 
 /// What one tile saw: core rectangle, buffer width, point ids, core count.

@@ -29,6 +29,7 @@
 use rayon::prelude::*;
 
 use super::{GroundError, GroundParams};
+use crate::geom::cell_representative;
 
 /// How many of the lowest points of a cell are examined for outliers.
 const LOWEST_PER_CELL: usize = 16;
@@ -517,30 +518,6 @@ pub(super) fn lowest_per_cell(
         start = end;
     }
     (lowest, rest)
-}
-
-/// Position of a cell's representative in its points sorted by height: the lowest point with
-/// `support` more points within `window_m` above it (support grows with the cell's point count,
-/// 1 to 8), so that a few isolated low outliers are skipped; the lowest point when none has.
-///
-/// `count` is the cell's number of points, of which only the lowest `held` are known
-/// (`z(j)`, ascending, j < `held`). None when those do not decide it (a choice at or beyond
-/// `held - support` is possible). The one rule for `lowest_per_cell` (all points held) and
-/// for the far-buffer thinning of split tiles (`tiling::FarThin`), which keeps exactly the
-/// point this picks.
-pub fn cell_representative(
-    count: usize,
-    held: usize,
-    z: impl Fn(usize) -> f64,
-    window_m: f64,
-) -> Option<usize> {
-    let support = (count / 32).clamp(1, 8);
-    let found = (0..held.saturating_sub(support)).find(|&j| z(j + support) - z(j) <= window_m);
-    match found {
-        Some(j) => Some(j),
-        None if held >= count => Some(0),
-        None => None,
-    }
 }
 
 /// `f64` bits whose unsigned order is the numeric (total) order of the values.

@@ -1,6 +1,7 @@
 //! Input and output: LAS/LAZ scanning and validation, chunked reading, atomic tile writing,
 //! and MCAP drive recordings (decoded and georeferenced into LAS parts, [`mcap`]).
 
+pub mod attributes;
 pub mod extra;
 pub mod files;
 pub mod input;

@@ -361,7 +361,7 @@ impl TileWriter {
                     ))
                 })?;
             if id > self.id_type.max() {
-                return Err(crate::stitch::StitchError::IdOverflow(id).into());
+                return Err(crate::error::StitchError::IdOverflow(id).into());
             }
             Ok(id)
         };

@@ -192,11 +192,11 @@ pub fn from_classified_points(
     }
     let src = {
         let r = las::Reader::from_path(path).map_err(|e| Error::las(path, e))?;
-        crate::eval::field_source(path, r.header(), field)?
+        crate::io::attributes::field_source(path, r.header(), field)?
     };
     let mut blocks: BTreeMap<(u8, i64, i64), LabStats> = BTreeMap::new();
     for_each_point(path, |p| {
-        let v = crate::eval::field_value(path, p, src)?;
+        let v = crate::io::attributes::field_value(path, p, src)?;
         let Ok(class) = u8::try_from(v) else {
             return Err(Error::bad_input(
                 path,

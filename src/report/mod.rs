@@ -1,6 +1,6 @@
 //! Run summary (`summary.json`) and process memory figures.
 
-use crate::pipeline::budget::BudgetPlan;
+use crate::budget::BudgetPlan;
 use serde::Serialize;
 use std::collections::BTreeMap;
 

@@ -39,6 +39,7 @@ use std::time::Instant;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+pub use crate::model::SegmentInfo;
 pub use features::{rgb_is_8bit, rgb_to_lab, LabFormula};
 
 /// How regions grow.
@@ -293,23 +294,6 @@ impl fmt::Display for SegError {
 }
 
 impl std::error::Error for SegError {}
-
-/// One output segment.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct SegmentInfo {
-    /// Segment id (1..=N).
-    pub id: u32,
-    /// Number of points.
-    pub n: usize,
-    /// Unit normal of the least-squares plane (z ≥ 0, else y ≥ 0, else x ≥ 0).
-    pub normal: [f64; 3],
-    /// Plane offset in input coordinates: `normal · p = d`.
-    pub d: f64,
-    /// Mean input colour on an 8-bit scale (0–255), zeros without colour.
-    pub mean_rgb: [f64; 3],
-    /// RMS orthogonal distance of the members to the plane, metres.
-    pub rms: f64,
-}
 
 /// Counters and stage timings of one call.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]

@@ -20,22 +20,12 @@
 use super::components::{node, split, Components, Final};
 use super::pairs::match_pair;
 use super::summary::{BorderRecord, BorderSummary};
-use super::{CellKey, StitchError, StitchParams, StitchStats};
-use crate::model::{Rect, TileId};
+use super::{CellKey, CellRelease, StitchError, StitchParams, StitchStats};
+use crate::geom::cell_rect;
+use crate::model::Rect;
 use crate::tiling::spill::FastHasher;
 use std::collections::{HashMap, HashSet};
 use std::hash::BuildHasherDefault;
-
-/// The tiler's release of one grid cell.
-#[derive(Debug, Clone, PartialEq)]
-pub struct CellRelease {
-    /// The cell.
-    pub cell: CellKey,
-    /// Whether it has core points (it becomes a worker job) or not (nothing will arrive).
-    pub has_core: bool,
-    /// Neighbouring cells (of the 8) still open in the tiler at release time.
-    pub open_neighbours: Vec<CellKey>,
-}
 
 /// A tile whose segments all have their global ids.
 #[derive(Debug)]
@@ -81,30 +71,6 @@ impl CellState {
             return false;
         }
         (0u8..4).all(|c| self.covered((node.0 + 1, (node.1 << 2) | c as u64), r.quadrant(c), q))
-    }
-}
-
-/// The grid cell's core rectangle from one of its quadtree leaves.
-pub(super) fn cell_rect(leaf: &TileId, core: &Rect) -> Rect {
-    let w = core.width() * (1u64 << leaf.level) as f64;
-    let h = (core.y1 - core.y0) * (1u64 << leaf.level) as f64;
-    let (mut x0, mut y0) = (core.x0, core.y0);
-    for l in 0..leaf.level {
-        // Quadrant taken at depth `level - l` (the least significant bits are the deepest).
-        let q = (leaf.path >> (2 * l as u64)) & 3;
-        let scale = (1u64 << (leaf.level - l)) as f64;
-        if q & 1 == 1 {
-            x0 -= w / scale;
-        }
-        if q & 2 == 2 {
-            y0 -= h / scale;
-        }
-    }
-    Rect {
-        x0,
-        y0,
-        x1: x0 + w,
-        y1: y0 + h,
     }
 }
 
@@ -605,6 +571,7 @@ impl<P> Stitcher<P> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::model::TileId;
 
     #[test]
     fn cell_rect_walks_back_up_the_quadtree() {

@@ -1,6 +1,6 @@
 //! Cross-tile stitching: one global segment id per real-world segment, at fixed memory.
 //!
-//! Every tile is segmented on its core plus a strip of `strip_m` (`segment.buffer_m`, capped
+//! Every tile is segmented on its core plus a strip of `strip_m` (`segment.context_m`, capped
 //! by the tiling buffer) beyond it, and every point's result comes from its **core** tile. So
 //! where two tiles overlap, each overlap point carries two labels: the one from its core tile
 //! and the one from the tile that saw it as buffer. Two local segments are the same real
@@ -31,13 +31,13 @@ pub mod frontier;
 pub mod pairs;
 pub mod summary;
 
-pub use frontier::{CellRelease, Ready, Stitcher};
+pub use crate::error::StitchError;
+pub use crate::model::CellKey;
+pub use crate::tiling::CellRelease;
+pub use frontier::{Ready, Stitcher};
 pub use summary::{BorderRecord, BorderSummary};
 
 use serde::{Deserialize, Serialize};
-
-/// A grid cell (column, row): the unit the tiler releases; quadtree leaves share their cell.
-pub type CellKey = (i64, i64);
 
 /// `[stitch]` configuration section.
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
@@ -78,34 +78,6 @@ impl StitchParams {
         }
         Ok(())
     }
-}
-
-/// Errors of the stitcher: violated invariants of the message flow or of a summary (bugs or
-/// corrupted state, never user input), reported instead of writing wrong ids.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum StitchError {
-    /// A tile arrived for a cell the tiler never released.
-    #[error("stitch: tile {tile} arrived for cell {cell:?}, which was not released")]
-    UnknownCell {
-        /// Tile name.
-        tile: String,
-        /// Its cell.
-        cell: CellKey,
-    },
-    /// A summary is inconsistent with its tile.
-    #[error("stitch: tile {tile}: {reason}")]
-    BadSummary {
-        /// Tile name.
-        tile: String,
-        /// What is wrong.
-        reason: String,
-    },
-    /// The run ended with cells that never completed.
-    #[error("stitch: {0} cell(s) never completed (first {1:?})")]
-    Incomplete(usize, CellKey),
-    /// A segment id does not fit the output attribute.
-    #[error("stitch: segment id {0} does not fit the 32-bit segment_id attribute")]
-    IdOverflow(u64),
 }
 
 /// Stitching statistics (the `stitch` object of `summary.json`).

@@ -1,8 +1,8 @@
 //! Border summaries: what one segmented tile tells the stitcher — its labelled points near the
 //! core edges (both sides) and an anchor per local segment — and nothing else.
 
-use super::frontier::cell_rect;
 use super::StitchError;
+use crate::geom::cell_rect;
 use crate::model::{Rect, Tile, TileId};
 
 /// One labelled point near a tile's core edge.

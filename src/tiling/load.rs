@@ -4,7 +4,7 @@
 use super::spill::{Part, SpillSet};
 use super::TileJob;
 use crate::error::{Error, Result};
-use crate::ground::seeds::cell_representative;
+use crate::geom::cell_representative;
 use crate::model::{RecordLayout, Rect, Tile, TileName};
 use std::collections::{HashMap, HashSet};
 use std::path::Path;
@@ -115,7 +115,7 @@ pub fn split_job(
     let half = job.core.width() / 2.0;
     if half < min_tile_size_m {
         return Err(Error::Budget(format!(
-            "tile {}: {} points (core {} + buffer {}, {} of them within {} m of the core) in {:.3} m × {:.3} m exceed what a tile may hold at this memory budget (about {} points), and splitting further would go below tiling.min_tile_size_m = {} m; raise --memory-budget, use fewer --threads (each worker holds one tile), or narrow the stages' contexts (segment.buffer_m, label.buffer_m) or tiling.buffer_m",
+            "tile {}: {} points (core {} + buffer {}, {} of them within {} m of the core) in {:.3} m × {:.3} m exceed what a tile may hold at this memory budget (about {} points), and splitting further would go below tiling.min_tile_size_m = {} m; raise --memory-budget, use fewer --threads (each worker holds one tile), or narrow the stages' contexts (segment.context_m, label.context_m) or tiling.buffer_m",
             job.name,
             job.n_core + job.n_buf,
             job.n_core,
@@ -265,7 +265,7 @@ pub fn split_job(
 pub const FAR_KEEP: usize = 16;
 
 /// The cells beyond the other stages' context in which a stage reading the whole buffer only
-/// uses one representative point (see [`crate::ground::seeds::cell_representative`]).
+/// uses one representative point (see [`crate::geom::cell_representative`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FarCells {
     /// Cell size, metres (aligned to absolute multiples).

@@ -11,9 +11,20 @@ pub use spill::{FinishedTile, Part, SpillPart, SpillSet, TileMap};
 
 use crate::error::Result;
 use crate::io::InputFile;
-use crate::model::{point_id, RecordLayout, Rect, TileId, TileName};
-use crate::stitch::CellRelease;
+use crate::model::{point_id, CellKey, RecordLayout, Rect, TileId, TileName};
 use std::path::Path;
+
+/// The tiler's release of one grid cell (what the stitcher needs to know which tiles can
+/// still share overlap points).
+#[derive(Debug, Clone, PartialEq)]
+pub struct CellRelease {
+    /// The cell.
+    pub cell: CellKey,
+    /// Whether it has core points (it becomes a worker job) or not (nothing will arrive).
+    pub has_core: bool,
+    /// Neighbouring cells (of the 8) still open in the tiler at release time.
+    pub open_neighbours: Vec<CellKey>,
+}
 
 /// A complete tile waiting for a worker: its points are in spill files and, for tiles released
 /// while their buffers still held points, partly in memory.

@@ -2,8 +2,7 @@
 //! writes ASPRS class 2 (ground), 7 (low noise, if enabled) and the configured class for the
 //! rest.
 
-use super::stage::{Stage, StageSpec, TileReport};
-use crate::config::Config;
+use super::stage::{parse_section, Stage, StageSpec, TileReport};
 use crate::error::{Error, Result};
 use crate::ground::{classify_ground, GroundClass};
 use crate::model::{RecordLayout, Tile};
@@ -44,11 +43,15 @@ impl GroundSection {
 
 /// Registry entry.
 pub const SPEC: StageSpec = StageSpec {
-    name: "ground",
+    name: NAME,
     requires: &[],
-    validate: |cfg: &Config| cfg.ground.validate(),
-    build: |cfg: &Config| Ok(Box::new(GroundStage::new(cfg.ground.clone()))),
+    has_section: true,
+    validate: |raw| parse_section::<GroundSection>(NAME, raw)?.validate(),
+    build: |raw| Ok(Box::new(GroundStage::new(parse_section(NAME, raw)?)?)),
 };
+
+/// The stage's name and the name of its section.
+pub const NAME: &str = "ground";
 
 /// Ground filtering stage.
 #[derive(Debug, Clone)]
@@ -58,14 +61,15 @@ pub struct GroundStage {
 
 impl GroundStage {
     /// Builds the stage from its configuration section.
-    pub fn new(section: GroundSection) -> Self {
-        GroundStage { section }
+    pub fn new(section: GroundSection) -> Result<Self> {
+        section.validate()?;
+        Ok(GroundStage { section })
     }
 }
 
 impl Stage for GroundStage {
     fn name(&self) -> &'static str {
-        "ground"
+        NAME
     }
     fn bytes_per_point(&self) -> usize {
         self.section.params.bytes_per_point()

@@ -1,7 +1,6 @@
 //! The pass-through stage: leaves points untouched and reports per-tile statistics.
 
 use super::stage::{Stage, StageSpec, TileReport};
-use crate::config::Config;
 use crate::error::Result;
 use crate::model::{RecordLayout, Tile};
 use std::collections::BTreeMap;
@@ -10,8 +9,9 @@ use std::collections::BTreeMap;
 pub const SPEC: StageSpec = StageSpec {
     name: "stats",
     requires: &[],
-    validate: |_: &Config| Ok(()),
-    build: |_: &Config| Ok(Box::new(StatsStage)),
+    has_section: false,
+    validate: |_| Ok(()),
+    build: |_| Ok(Box::new(StatsStage)),
 };
 
 /// Pass-through stage: leaves points untouched and reports per-tile statistics.

@@ -3,14 +3,13 @@
 //! classes from segment and object geometry. Runs after `ground` and (for facades and roofs)
 //! `segment`; writes the classification codes of the points of the core and a strip around it.
 
-use super::segment_stage::rgb_offset;
-use super::stage::{Stage, StageSpec, TileReport};
-use crate::config::Config;
+use super::stage::{parse_section, Stage, StageSpec, TileReport};
 use crate::error::{Error, Result};
 use crate::label::kerbs::{classify_by_kerbs, KerbRule};
+use crate::label::objects::ObjectStats;
 use crate::label::{
-    classify_objects, label_ground, GroundLabelParams, LabelCodes, ObjectInput, ObjectParams,
-    SampleSet,
+    classify_objects, label_ground, GroundLabelParams, LabelCodes, ObjectClass, ObjectInput,
+    ObjectParams, SampleSet,
 };
 use crate::model::{RecordLayout, Tile};
 use crate::segment::features::normals;
@@ -35,8 +34,8 @@ pub struct LabelSection {
     #[serde(default = "default_min_sample")]
     pub min_sample_points: u64,
     /// Points farther than this outside the core are context only (capped by the tile buffer).
-    #[serde(default = "default_buffer")]
-    pub buffer_m: f64,
+    #[serde(default = "default_context", alias = "buffer_m")]
+    pub context_m: f64,
     /// Ground subclass parameters.
     #[serde(default)]
     pub ground: GroundLabelParams,
@@ -54,7 +53,7 @@ fn default_block() -> f64 {
 fn default_min_sample() -> u64 {
     30
 }
-fn default_buffer() -> f64 {
+fn default_context() -> f64 {
     5.0
 }
 
@@ -64,7 +63,7 @@ impl Default for LabelSection {
             samples: String::new(),
             sample_block_m: default_block(),
             min_sample_points: default_min_sample(),
-            buffer_m: default_buffer(),
+            context_m: default_context(),
             ground: GroundLabelParams::default(),
             objects: ObjectParams::default(),
             codes: LabelCodes::default(),
@@ -84,10 +83,10 @@ impl LabelSection {
     pub fn validate(&self) -> Result<()> {
         let g = &self.ground;
         let positive = g.radius_m.is_finite() && g.radius_m > 0.0;
-        let non_negative = self.buffer_m.is_finite() && self.buffer_m >= 0.0;
+        let non_negative = self.context_m.is_finite() && self.context_m >= 0.0;
         if g.k < 3 || !positive || !non_negative {
             return Err(Error::Config(
-                "label: ground.k must be >= 3, ground.radius_m > 0 and buffer_m >= 0".into(),
+                "label: ground.k must be >= 3, ground.radius_m > 0 and context_m >= 0".into(),
             ));
         }
         Ok(())
@@ -96,11 +95,15 @@ impl LabelSection {
 
 /// Registry entry: ground subclasses need the ground filter's classes.
 pub const SPEC: StageSpec = StageSpec {
-    name: "label",
+    name: NAME,
     requires: &["ground"],
-    validate: |cfg: &Config| cfg.label.validate(),
-    build: |cfg: &Config| Ok(Box::new(LabelStage::new(cfg.label.clone())?)),
+    has_section: true,
+    validate: |raw| parse_section::<LabelSection>(NAME, raw)?.validate(),
+    build: |raw| Ok(Box::new(LabelStage::new(parse_section(NAME, raw)?)?)),
 };
+
+/// The stage's name and the name of its section.
+pub const NAME: &str = "label";
 
 impl LabelStage {
     /// Builds the stage, loading the training samples once.
@@ -127,7 +130,7 @@ impl LabelStage {
 
 impl Stage for LabelStage {
     fn name(&self) -> &'static str {
-        "label"
+        NAME
     }
     fn max_class_code(&self) -> u8 {
         let samples = self
@@ -147,7 +150,7 @@ impl Stage for LabelStage {
         self.section.codes.max().max(samples).max(geometry)
     }
     fn context_m(&self) -> Option<f64> {
-        Some(self.section.buffer_m)
+        Some(self.section.context_m)
     }
     fn bytes_per_point(&self) -> usize {
         // Neighbour lists (index + distance, k of them), normals, colour, region and class
@@ -176,7 +179,7 @@ impl Stage for LabelStage {
             )));
         }
         let rl = layout.record_len;
-        let zone = tile.core.expanded(self.section.buffer_m.min(tile.buffer_m));
+        let zone = tile.context_zone(self.section.context_m);
         let n = tile.len();
         let classes: Vec<u8> = tile
             .records
@@ -188,107 +191,21 @@ impl Stage for LabelStage {
 
         // Ground subclasses.
         let gidx: Vec<usize> = (0..n).filter(|&i| is_ground[i] && in_zone[i]).collect();
-        let mut ground_report = serde_json::Value::Null;
         let mut new_class = classes.clone();
         // Seconds: neighbours, normals, colour, ground labelling, objects.
         let mut times = [0.0f64; 5];
-        if !gidx.is_empty() {
-            let o = tile.xyz[gidx[0]];
-            let pts: Vec<[f64; 3]> = gidx
-                .iter()
-                .map(|&i| {
-                    let p = tile.xyz[i];
-                    [p[0] - o[0], p[1] - o[1], p[2] - o[2]]
-                })
-                .collect();
-            let gp = &self.section.ground;
-            let t = std::time::Instant::now();
-            let nb = knn_surface(&pts, gp.k, gp.radius_m);
-            times[0] = t.elapsed().as_secs_f64();
-            let t = std::time::Instant::now();
-            let nrm = normals(&pts, &nb, gp.radius_m);
-            times[1] = t.elapsed().as_secs_f64();
-            let t = std::time::Instant::now();
-            let lab: Option<Vec<[f64; 3]>> = rgb_offset(layout).map(|off| {
-                let rgb: Vec<[u16; 3]> = gidx
-                    .iter()
-                    .map(|&i| {
-                        let rec = &tile.records[i * rl..(i + 1) * rl];
-                        let v =
-                            |c: usize| u16::from_le_bytes([rec[off + 2 * c], rec[off + 2 * c + 1]]);
-                        [v(0), v(1), v(2)]
-                    })
-                    .collect();
-                let s = if rgb_is_8bit(&rgb) { 255.0 } else { 65535.0 };
-                rgb.iter()
-                    .map(|c| rgb_to_lab(c.map(|v| v as f64 / s), LabFormula::Srgb))
-                    .collect()
-            });
-            times[2] = t.elapsed().as_secs_f64();
-            let t = std::time::Instant::now();
-            let gl = label_ground(
-                &nrm,
-                lab.as_deref(),
-                Some(&pts),
-                &nb,
-                self.samples.as_deref(),
-                self.section.codes.unknown_ground,
-                gp,
-            );
-            // Without samples, geometry mode names road / sidewalk / terrain by kerbs.
-            let by_kerbs = (self.samples.is_none() && gp.geometry).then(|| {
-                let rule = KerbRule::from_params(gp, self.section.codes.unknown_ground);
-                let r2 = (gp.radius_m * gp.radius_m) as f32;
-                let mut c = classify_by_kerbs(&pts, &nrm, &nb, r2, &gl.region, gl.regions, &rule);
-                crate::label::ground::smooth_labels(&mut c, &nb, gp.smooth_k);
-                c
-            });
-            times[3] = t.elapsed().as_secs_f64();
-            let ground_class = by_kerbs.as_ref().unwrap_or(&gl.class);
-            for (k, &i) in gidx.iter().enumerate() {
-                new_class[i] = ground_class[k];
-            }
-            ground_report = serde_json::json!({
-                "points": gidx.len(),
-                "regions_grown": gl.regions_grown,
-                "regions": gl.regions,
-                "regions_unknown": gl.regions_unknown,
-            });
-        }
+        let ground_report = if gidx.is_empty() {
+            serde_json::Value::Null
+        } else {
+            self.ground_subclasses(tile, layout, &gidx, &mut new_class, &mut times)
+        };
 
         // Non-ground.
         let todo: Vec<bool> = (0..n)
             .map(|i| in_zone[i] && !is_ground[i] && !matches!(classes[i], 7 | 18))
             .collect();
-        let no_segments = vec![0u32; n];
-        let segment = if tile.segments.len() == n {
-            &tile.segments
-        } else {
-            &no_segments
-        };
-        let non_last: Vec<bool> = tile
-            .records
-            .chunks_exact(rl)
-            .map(|r| {
-                let (rn, nr) = layout.returns(r);
-                rn < nr
-            })
-            .collect();
-        let has_returns = tile
-            .records
-            .chunks_exact(rl)
-            .any(|r| layout.returns(r).1 > 1);
         let t = std::time::Instant::now();
-        let (obj, ostats) = classify_objects(
-            &ObjectInput {
-                xyz: &tile.xyz,
-                is_ground: &is_ground,
-                todo: &todo,
-                segment,
-                non_last_return: has_returns.then_some(&non_last[..]),
-            },
-            &self.section.objects,
-        );
+        let (obj, ostats) = self.objects(tile, layout, &is_ground, &todo);
         times[4] = t.elapsed().as_secs_f64();
         for (i, c) in obj.iter().enumerate() {
             if let Some(c) = c {
@@ -318,5 +235,120 @@ impl Stage for LabelStage {
             }),
         );
         Ok(())
+    }
+}
+
+impl LabelStage {
+    /// Ground subclasses of the ground points `gidx` of the zone: region growing on normals
+    /// and colour, samples or kerbs; writes them into `new_class`, times into `times[0..4]`.
+    fn ground_subclasses(
+        &self,
+        tile: &Tile,
+        layout: &RecordLayout,
+        gidx: &[usize],
+        new_class: &mut [u8],
+        times: &mut [f64; 5],
+    ) -> serde_json::Value {
+        let rl = layout.record_len;
+        let o = tile.xyz[gidx[0]];
+        let pts: Vec<[f64; 3]> = gidx
+            .iter()
+            .map(|&i| {
+                let p = tile.xyz[i];
+                [p[0] - o[0], p[1] - o[1], p[2] - o[2]]
+            })
+            .collect();
+        let gp = &self.section.ground;
+        let t = std::time::Instant::now();
+        let nb = knn_surface(&pts, gp.k, gp.radius_m);
+        times[0] = t.elapsed().as_secs_f64();
+        let t = std::time::Instant::now();
+        let nrm = normals(&pts, &nb, gp.radius_m);
+        times[1] = t.elapsed().as_secs_f64();
+        let t = std::time::Instant::now();
+        let lab: Option<Vec<[f64; 3]>> = layout.rgb_offset().map(|off| {
+            let rgb: Vec<[u16; 3]> = gidx
+                .iter()
+                .map(|&i| {
+                    let rec = &tile.records[i * rl..(i + 1) * rl];
+                    let v = |c: usize| u16::from_le_bytes([rec[off + 2 * c], rec[off + 2 * c + 1]]);
+                    [v(0), v(1), v(2)]
+                })
+                .collect();
+            let s = if rgb_is_8bit(&rgb) { 255.0 } else { 65535.0 };
+            rgb.iter()
+                .map(|c| rgb_to_lab(c.map(|v| v as f64 / s), LabFormula::Srgb))
+                .collect()
+        });
+        times[2] = t.elapsed().as_secs_f64();
+        let t = std::time::Instant::now();
+        let gl = label_ground(
+            &nrm,
+            lab.as_deref(),
+            Some(&pts),
+            &nb,
+            self.samples.as_deref(),
+            self.section.codes.unknown_ground,
+            gp,
+        );
+        // Without samples, geometry mode names road / sidewalk / terrain by kerbs.
+        let by_kerbs = (self.samples.is_none() && gp.geometry).then(|| {
+            let rule = KerbRule::from_params(gp, self.section.codes.unknown_ground);
+            let r2 = (gp.radius_m * gp.radius_m) as f32;
+            let mut c = classify_by_kerbs(&pts, &nrm, &nb, r2, &gl.region, gl.regions, &rule);
+            crate::label::ground::smooth_labels(&mut c, &nb, gp.smooth_k);
+            c
+        });
+        times[3] = t.elapsed().as_secs_f64();
+        let ground_class = by_kerbs.as_ref().unwrap_or(&gl.class);
+        for (k, &i) in gidx.iter().enumerate() {
+            new_class[i] = ground_class[k];
+        }
+        serde_json::json!({
+            "points": gidx.len(),
+            "regions_grown": gl.regions_grown,
+            "regions": gl.regions,
+            "regions_unknown": gl.regions_unknown,
+        })
+    }
+
+    /// Object classes of the points marked `todo` (non-ground, not noise, in the zone).
+    fn objects(
+        &self,
+        tile: &Tile,
+        layout: &RecordLayout,
+        is_ground: &[bool],
+        todo: &[bool],
+    ) -> (Vec<Option<ObjectClass>>, ObjectStats) {
+        let rl = layout.record_len;
+        let n = tile.len();
+        let no_segments = vec![0u32; n];
+        let segment = if tile.segments.len() == n {
+            &tile.segments
+        } else {
+            &no_segments
+        };
+        let non_last: Vec<bool> = tile
+            .records
+            .chunks_exact(rl)
+            .map(|r| {
+                let (rn, nr) = layout.returns(r);
+                rn < nr
+            })
+            .collect();
+        let has_returns = tile
+            .records
+            .chunks_exact(rl)
+            .any(|r| layout.returns(r).1 > 1);
+        classify_objects(
+            &ObjectInput {
+                xyz: &tile.xyz,
+                is_ground,
+                todo,
+                segment,
+                non_last_return: has_returns.then_some(&non_last[..]),
+            },
+            &self.section.objects,
+        )
     }
 }

@@ -1,14 +1,16 @@
-//! The writer side of the pipeline: commits finished tiles, keeps the run's books and, when
-//! segments are stitched, runs the [`Stitcher`] and writes each tile once its global segment
-//! ids are final.
+//! The writer: runs on the pipeline's own thread, commits finished tiles into the output
+//! directory, keeps the run's books and, when segments are stitched, runs the [`Stitcher`] and
+//! writes each tile once its global segment ids are final.
 
-use super::stage::TileReport;
+use super::failure::Failure;
 use crate::error::{Error, Result};
 use crate::io::output::DeferredTile;
 use crate::io::workspace::OutputDir;
 use crate::io::{PendingTile, TileWriter};
 use crate::report::{Summary, TileSummary};
+use crate::stages::TileReport;
 use crate::stitch::{BorderSummary, CellKey, CellRelease, StitchParams, Stitcher};
+use crossbeam_channel::Receiver;
 use std::path::Path;
 use std::time::Instant;
 
@@ -84,6 +86,25 @@ impl<'a> Collector<'a> {
             summary: Summary::default(),
             write_s: 0.0,
             stitch_s: 0.0,
+        }
+    }
+
+    /// Handles every message until all senders are gone, then finishes. After a failure,
+    /// messages are only cleaned up (their temporary files removed).
+    pub fn run(&mut self, results: Receiver<ToWriter>, failure: &Failure) {
+        for msg in results.iter() {
+            if failure.failed() {
+                msg.abandon();
+                continue;
+            }
+            if let Err(e) = self.handle(msg) {
+                failure.set(e);
+            }
+        }
+        if !failure.failed() {
+            if let Err(e) = self.finish() {
+                failure.set(e);
+            }
         }
     }
 

@@ -6,8 +6,7 @@
 //! Segment ids are local to a tile (1..=N in the tile's canonical order) until cross-tile
 //! stitching assigns global ids.
 
-use super::stage::{Stage, StageSpec, TileReport};
-use crate::config::Config;
+use super::stage::{parse_section, Stage, StageSpec, TileReport};
 use crate::error::{Error, Result};
 use crate::model::{RecordLayout, SegmentRow, Tile};
 use crate::segment::{segment_at, SegParams};
@@ -36,13 +35,13 @@ pub struct SegmentSection {
     /// (20 m by default), far more context than region growing needs; segmenting all of it
     /// cost 8× the time on 12.5 m quadtree tiles. This strip is also the overlap in which
     /// neighbouring tiles' segments are compared when they are stitched.
-    #[serde(default = "default_seg_buffer")]
-    pub buffer_m: f64,
+    #[serde(default = "default_seg_context", alias = "buffer_m")]
+    pub context_m: f64,
     /// Region-growing parameters.
     pub params: SegParams,
 }
 
-fn default_seg_buffer() -> f64 {
+fn default_seg_context() -> f64 {
     5.0
 }
 
@@ -58,10 +57,10 @@ impl SegmentSection {
         self.params
             .validate()
             .map_err(|e| Error::Config(format!("segment.params: {e}")))?;
-        if !(self.buffer_m.is_finite() && self.buffer_m >= 0.0) {
+        if !(self.context_m.is_finite() && self.context_m >= 0.0) {
             return Err(Error::Config(format!(
-                "segment.buffer_m must be >= 0, got {}",
-                self.buffer_m
+                "segment.context_m must be >= 0, got {}",
+                self.context_m
             )));
         }
         Ok(())
@@ -70,11 +69,15 @@ impl SegmentSection {
 
 /// Registry entry.
 pub const SPEC: StageSpec = StageSpec {
-    name: "segment",
+    name: NAME,
     requires: &[],
-    validate: |cfg: &Config| cfg.segment.validate(),
-    build: |cfg: &Config| Ok(Box::new(SegmentStage::new(cfg.segment.clone())?)),
+    has_section: true,
+    validate: |raw| parse_section::<SegmentSection>(NAME, raw)?.validate(),
+    build: |raw| Ok(Box::new(SegmentStage::new(parse_section(NAME, raw)?)?)),
 };
+
+/// The stage's name and the name of its section.
+pub const NAME: &str = "segment";
 
 impl SegmentStage {
     /// Builds the stage from its configuration section.
@@ -84,32 +87,15 @@ impl SegmentStage {
     }
 }
 
-/// Byte offset of red in a record of `layout` (green and blue follow), if it has colour.
-pub fn rgb_offset(layout: &RecordLayout) -> Option<usize> {
-    let f = &layout.format;
-    if !f.has_color {
-        return None;
-    }
-    // LAS 1.4 R15 tables 7-16: legacy formats put colour after the 20-byte core and the
-    // optional GPS time; formats 7, 8, 10 after the 30-byte extended core.
-    Some(if f.is_extended {
-        30
-    } else if f.has_gps_time {
-        28
-    } else {
-        20
-    })
-}
-
 impl Stage for SegmentStage {
     fn name(&self) -> &'static str {
-        "segment"
+        NAME
     }
     fn assigns_segment_ids(&self) -> bool {
         true
     }
     fn context_m(&self) -> Option<f64> {
-        Some(self.section.buffer_m)
+        Some(self.section.context_m)
     }
     fn bytes_per_point(&self) -> usize {
         // Neighbour lists (u32 per neighbour, k of them), canonical order, normals, colour
@@ -125,7 +111,7 @@ impl Stage for SegmentStage {
         report: &mut TileReport,
     ) -> Result<()> {
         let rl = layout.record_len;
-        let zone = tile.core.expanded(self.section.buffer_m.min(tile.buffer_m));
+        let zone = tile.context_zone(self.section.context_m);
         let mask: Vec<bool> = tile
             .records
             .chunks_exact(rl)
@@ -141,7 +127,7 @@ impl Stage for SegmentStage {
                 wanted && zone.contains(p[0], p[1])
             })
             .collect();
-        let rgb: Option<Vec<[u16; 3]>> = rgb_offset(layout).map(|o| {
+        let rgb: Option<Vec<[u16; 3]>> = layout.rgb_offset().map(|o| {
             tile.records
                 .chunks_exact(rl)
                 .map(|rec| {

@@ -1,0 +1,252 @@
+//! The run plan: everything about a run that follows from the configuration, the stages and
+//! the scanned inputs, resolved once before any point is read. The reader, tiler, workers and
+//! writer each take their part of it, never the whole configuration.
+//!
+//! Two widths are kept apart here. The **buffer** (`tiling.buffer_m`) is the overlap every
+//! tile carries around its core, sized for the stage that needs the most context (the ground
+//! filter's seed cells). A stage's **context** (`segment.context_m`, `label.context_m`) is how
+//! far beyond the core that stage works, at most the buffer
+//! ([`crate::model::stage_context_m`]); the segment stage's context is also the strip in which
+//! neighbouring tiles' segments are matched when they are stitched.
+
+use crate::budget::{BudgetPlan, StageMemory};
+use crate::config::Config;
+use crate::error::{Error, Result};
+use crate::io::output::SegmentIdType;
+use crate::io::{scan_inputs, InputSet, TileWriter};
+use crate::model::stage_context_m;
+use crate::stages::Stage;
+use crate::stitch::StitchParams;
+use crate::tiling::{FarThin, Grid, SplitParams};
+use std::path::{Path, PathBuf};
+
+/// A run, resolved.
+pub struct RunPlan {
+    /// The scanned inputs and the run's record layout (the output point format).
+    pub set: InputSet,
+    /// Worker threads.
+    pub workers: usize,
+    /// Tile size and buffer (0 when no stage reads context: buffers only cost).
+    pub grid: Grid,
+    /// The memory plan (chunk sizes, spill bounds, tile limits).
+    pub budget: BudgetPlan,
+    /// Stitching, when a stage assigns segment ids and `stitch.enabled`.
+    pub stitch: Option<StitchPlan>,
+    /// Far-buffer thinning of split tiles, when the stages allow it.
+    pub far_thin: Option<FarThin>,
+    /// Smallest core edge quadtree splitting may produce, metres.
+    pub min_tile_size_m: f64,
+    /// Whether a stage writes segment ids, and their width in the output.
+    pub segment_ids: Option<SegmentIdType>,
+    /// LAZ (true) or LAS output.
+    pub laz: bool,
+    /// Where spill files go (inside the run's work directory).
+    pub spill_dir: PathBuf,
+}
+
+/// What the workers and the writer need to stitch segments across tiles.
+pub struct StitchPlan {
+    /// Matching parameters.
+    pub params: StitchParams,
+    /// The overlap strip tiles are matched in: the segment stage's context.
+    pub strip_m: f64,
+    /// Ordinal of the first point of each input file (prefix sums in input order).
+    pub first_ordinal: Vec<u64>,
+}
+
+impl StitchPlan {
+    /// Position of a point in the run's inputs: dense, deterministic, unique.
+    pub fn ordinal(&self, pid: u64) -> u64 {
+        let file = (pid >> 40) as usize;
+        self.first_ordinal
+            .get(file)
+            .copied()
+            .unwrap_or(u64::MAX >> 1)
+            + (pid & ((1 << 40) - 1))
+    }
+}
+
+impl RunPlan {
+    /// Scans `inputs` (LAS/LAZ, MCAP drives already staged) and resolves the run of `stages`
+    /// under `cfg`; spill files will go to `work_base/spill`.
+    pub fn resolve(
+        cfg: &Config,
+        stages: &[Box<dyn Stage>],
+        inputs: &[PathBuf],
+        work_base: &Path,
+    ) -> Result<RunPlan> {
+        let set = scan_for_stages(cfg, stages, inputs)?;
+        let workers = if cfg.pipeline.threads == 0 {
+            std::thread::available_parallelism()
+                .map(|n| n.get())
+                .unwrap_or(1)
+        } else {
+            cfg.pipeline.threads
+        };
+        // Stages run one after the other on a tile and free their working memory before the
+        // next starts, so the largest one counts (the plan charges results carried between
+        // stages, such as segment labels, to every point).
+        let stage_mem: Vec<StageMemory> = stages
+            .iter()
+            .map(|s| StageMemory {
+                context_bytes: s.bytes_per_point(),
+                tile_bytes: s.bytes_per_tile_point(),
+                context_m: s.context_m(),
+            })
+            .collect();
+        let segmenter = stages.iter().find(|s| s.assigns_segment_ids());
+        let stitching = segmenter.is_some() && cfg.stitch.enabled;
+        let mut budget = BudgetPlan::with_stages(
+            cfg.pipeline.memory_budget_mb,
+            set.layout.record_len,
+            &stage_mem,
+            workers,
+        )?;
+        if stitching {
+            budget.reserve_stitch()?;
+        }
+        // Buffers only cost (spill traffic grows with (tile + 2 buffer)² / tile²): build them
+        // only when some stage reads context.
+        let buffer_m = if stages.iter().any(|s| s.needs_context()) {
+            cfg.tiling.buffer_m
+        } else {
+            0.0
+        };
+        let stitch = match segmenter {
+            Some(s) if stitching => Some(stitch_plan(cfg, s.as_ref(), &set)),
+            _ => None,
+        };
+        // Global ids are point ordinals + 1: u32 while the run has fewer points.
+        let id_type = if stitch.is_some() && set.total_points >= u32::MAX as u64 {
+            SegmentIdType::U64
+        } else {
+            SegmentIdType::U32
+        };
+        Ok(RunPlan {
+            workers,
+            grid: Grid {
+                tile_size_m: cfg.tiling.tile_size_m,
+                buffer_m,
+            },
+            budget,
+            stitch,
+            far_thin: far_thin(cfg, stages),
+            min_tile_size_m: cfg.tiling.min_tile_size_m,
+            segment_ids: segmenter.map(|_| id_type),
+            laz: cfg.output.format == "laz",
+            spill_dir: work_base.join("spill"),
+            set,
+        })
+    }
+
+    /// The writer of the run's output tiles.
+    pub fn tile_writer(&self) -> Result<TileWriter> {
+        TileWriter::new(
+            &self.set.template,
+            &self.set.layout,
+            self.laz,
+            self.segment_ids,
+        )
+    }
+
+    /// How a worker splits a job too big for its share of the budget.
+    pub fn split_params(&self) -> SplitParams {
+        SplitParams {
+            min_tile_size_m: self.min_tile_size_m,
+            buffer_bytes: self.budget.spill_bytes / self.budget.workers.max(1),
+            max_points: self.budget.max_tile_points,
+            near_m: self.budget.near_m(),
+            far: self.far_thin,
+        }
+    }
+}
+
+/// Scans the inputs in the output point format: the configured one, else the inputs' own,
+/// upgraded to a LAS 1.4 format when a stage writes class codes legacy formats cannot hold.
+fn scan_for_stages(
+    cfg: &Config,
+    stages: &[Box<dyn Stage>],
+    inputs: &[PathBuf],
+) -> Result<InputSet> {
+    let requested = cfg.output_point_format()?;
+    let set = scan_inputs(inputs, requested)?;
+    let max_code = stages.iter().map(|s| s.max_class_code()).max().unwrap_or(0);
+    if requested.is_some() || max_code <= 31 || set.layout.format.is_extended {
+        return Ok(set);
+    }
+    // Legacy formats hold class codes up to 31; write the LAS 1.4 format with the same
+    // attributes (0, 1 → 6; 2, 3 → 7; 4 → 9; 5 → 10) rather than fail or truncate codes.
+    let f = &set.layout.format;
+    let up = match (f.has_color, f.has_waveform) {
+        (false, false) => 6,
+        (true, false) => 7,
+        (false, true) => 9,
+        (true, true) => 10,
+    };
+    tracing::info!(
+        "stages write class codes up to {max_code}: output point format {} -> {up}",
+        f.to_u8().unwrap_or(255)
+    );
+    scan_inputs(inputs, Some(up))
+}
+
+/// Stitching across the strip of the stage assigning segment ids.
+fn stitch_plan(cfg: &Config, segmenter: &dyn Stage, set: &InputSet) -> StitchPlan {
+    let mut first_ordinal = Vec::with_capacity(set.files.len());
+    let mut acc = 0u64;
+    for f in &set.files {
+        first_ordinal.push(acc);
+        acc += f.points;
+    }
+    let context_m = segmenter.context_m().unwrap_or(cfg.tiling.buffer_m);
+    let strip_m = stage_context_m(context_m, cfg.tiling.buffer_m);
+    if strip_m <= 0.0 {
+        tracing::warn!(
+            "stitching with a 0 m overlap strip ({}.context_m = {context_m}, tiling.buffer_m = {}): segments cannot be matched across borders and keep one id per tile",
+            segmenter.name(),
+            cfg.tiling.buffer_m
+        );
+    }
+    StitchPlan {
+        params: cfg.stitch.clone(),
+        strip_m,
+        first_ordinal,
+    }
+}
+
+/// Far-buffer thinning for split tiles: allowed when every stage that reads the whole buffer
+/// names its far cells ([`Stage::far_cells`]) and they agree; points within the widest bounded
+/// context of the other stages, and at least within `tiling.split_dense_buffer_m`, are all
+/// kept.
+fn far_thin(cfg: &Config, stages: &[Box<dyn Stage>]) -> Option<FarThin> {
+    if !cfg.tiling.thin_split_buffers {
+        return None;
+    }
+    let readers: Vec<&dyn Stage> = stages
+        .iter()
+        .filter(|s| s.needs_context())
+        .map(|s| s.as_ref())
+        .collect();
+    let mut cells = None;
+    for s in readers.iter().filter(|s| s.context_m().is_none()) {
+        let c = s.far_cells()?;
+        // Two different representative rules would each need their own points: keep all.
+        if cells.is_some_and(|p| p != c) {
+            return None;
+        }
+        cells = Some(c);
+    }
+    let near_m = readers
+        .iter()
+        .filter_map(|s| s.context_m())
+        .fold(0.0f64, f64::max);
+    Some(FarThin {
+        near_m: near_m.max(cfg.tiling.split_dense_buffer_m),
+        cells: cells?,
+    })
+}
+
+/// Makes sure the spill directory exists.
+pub(super) fn create_spill_dir(plan: &RunPlan) -> Result<()> {
+    std::fs::create_dir_all(&plan.spill_dir).map_err(|e| Error::io(&plan.spill_dir, e))
+}

@@ -1,0 +1,164 @@
+//! A worker: takes tile jobs, splits each while it is too big for its share of the budget,
+//! loads the tile, runs the stages on it and compresses its core points to a temporary file
+//! (or, with stitching, keeps them with local segment ids and summarises the tile's border).
+
+use super::failure::Failure;
+use super::plan::StitchPlan;
+use super::writer::{Processed, TileMeta, TileOutput, ToWriter};
+use crate::budget::BudgetPlan;
+use crate::error::Result;
+use crate::io::output::{segment_table_tsv, TileSegments};
+use crate::io::TileWriter;
+use crate::model::{RecordLayout, Tile};
+use crate::stages::{Stage, TileReport};
+use crate::stitch::BorderSummary;
+use crate::tiling::{load_tile, split_job, SplitParams, TileBuffers, TileJob};
+use crossbeam_channel::{Receiver, Sender};
+use std::path::Path;
+use std::time::Instant;
+
+/// What every worker shares: the stages, the layout, the budget and where files go.
+pub(super) struct WorkerRole<'a> {
+    pub layout: &'a RecordLayout,
+    pub stages: &'a [Box<dyn Stage>],
+    pub budget: &'a BudgetPlan,
+    pub split: SplitParams,
+    pub writer: &'a TileWriter,
+    /// The output's staging directory: finished tiles wait here for the writer's commit.
+    pub stage_dir: &'a Path,
+    /// Spill files (split children, tiles deferred for stitching).
+    pub spill_dir: &'a Path,
+    pub stitch: Option<&'a StitchPlan>,
+}
+
+impl WorkerRole<'_> {
+    /// Processes jobs until the channel closes or the run fails. The worker's tile buffers
+    /// are reused from tile to tile.
+    pub fn run(&self, jobs: Receiver<TileJob>, results: Sender<ToWriter>, failure: &Failure) {
+        let mut spare = TileBuffers::default();
+        for job in jobs.iter() {
+            if failure.failed() {
+                break;
+            }
+            if let Err(e) = self.work(job, &results, &mut spare) {
+                failure.set(e);
+                break;
+            }
+        }
+    }
+
+    /// One job: split while too big, then each resulting tile processed and sent on; with
+    /// stitching, the cell's completion after its last leaf.
+    fn work(&self, job: TileJob, res_tx: &Sender<ToWriter>, spare: &mut TileBuffers) -> Result<()> {
+        let root = job.name.to_string();
+        let cell = (job.id.ix, job.id.iy);
+        let mut leaves = 0;
+        let mut todo = vec![job];
+        let mut was_split = false;
+        let mut thinned = 0;
+        while let Some(job) = todo.pop() {
+            if !self.budget.fits(job.n_core, job.n_buf, job.n_near) {
+                was_split = true;
+                // The split's buffers take the place of a loaded tile: free the spare one.
+                *spare = TileBuffers::default();
+                let (name, n_core, n_buf, n_near) = (job.name, job.n_core, job.n_buf, job.n_near);
+                let (children, dropped) = split_job(job, self.layout, self.spill_dir, self.split)?;
+                tracing::debug!(
+                    "tile {name}: {n_core} core + {n_buf} buffer points ({n_near} near) do not fit; split into {} children ({dropped} far buffer copies thinned)",
+                    children.len(),
+                );
+                thinned += dropped;
+                // Reverse so children are processed in quadrant order.
+                todo.extend(children.into_iter().rev());
+                continue;
+            }
+            let tile = load_tile(job, self.layout, std::mem::take(spare))?;
+            let split_root = was_split.then(|| root.clone());
+            let p = self.process(tile, spare, split_root, std::mem::take(&mut thinned))?;
+            if let Err(e) = res_tx.send(ToWriter::Tile(Box::new(p))) {
+                e.into_inner().abandon();
+                return Ok(());
+            }
+            leaves += 1;
+        }
+        if self.stitch.is_some() {
+            let _ = res_tx.send(ToWriter::CellDone { cell, leaves });
+        }
+        Ok(())
+    }
+
+    /// Runs the stages on a loaded tile and prepares its output; hands the tile's buffers
+    /// back in `spare`.
+    fn process(
+        &self,
+        mut tile: Tile,
+        spare: &mut TileBuffers,
+        split_root: Option<String>,
+        buffer_thinned: u64,
+    ) -> Result<Processed> {
+        let mut report = TileReport::default();
+        for st in self.stages {
+            let t = Instant::now();
+            st.process(&mut tile, self.layout, &mut report)?;
+            report
+                .seconds
+                .insert(st.name().to_string(), t.elapsed().as_secs_f64());
+        }
+        tracing::debug!(
+            "tile {}: {} core + {} buffer points, stage seconds {:?}",
+            tile.name,
+            tile.n_core,
+            tile.len() - tile.n_core,
+            report.seconds
+        );
+        let name = tile.name.to_string();
+        let n_core = tile.n_core;
+        let buffer_points = (tile.len() - n_core) as u64;
+        let summary = match self.stitch {
+            Some(st) => Some(BorderSummary::build(&tile, st.strip_m, |pid| {
+                st.ordinal(pid)
+            })?),
+            None => None,
+        };
+        let mut records = std::mem::take(&mut tile.records);
+        records.truncate(n_core * self.layout.record_len);
+        let t = Instant::now();
+        let table = self
+            .writer
+            .writes_segments()
+            .then(|| segment_table_tsv(&tile.segment_table));
+        let seg = table.as_deref().map(|table| TileSegments {
+            ids: tile.segments.get(..n_core).unwrap_or(&[]),
+            table,
+        });
+        let output = match (summary, seg) {
+            (Some(summary), Some(seg)) => TileOutput::Deferred(
+                self.writer
+                    .defer(self.spill_dir, &name, &mut records, seg)?,
+                Box::new(summary),
+            ),
+            (_, seg) => TileOutput::Written(self.writer.prepare(
+                self.stage_dir,
+                &name,
+                &mut records,
+                seg,
+            )?),
+        };
+        *spare = TileBuffers::reclaim(&mut tile, records);
+        drop(tile);
+        report
+            .seconds
+            .insert("compress".into(), t.elapsed().as_secs_f64());
+        Ok(Processed {
+            meta: TileMeta {
+                name,
+                n_core: n_core as u64,
+                buffer_points,
+                report,
+                split_root,
+                buffer_thinned,
+            },
+            output,
+        })
+    }
+}
