@@ -11,7 +11,7 @@
 //!
 //! A run is first resolved into a [`RunPlan`] (inputs scanned, grid, budget, stitching,
 //! output layout); each role then gets its part of the plan and its channel ends:
-//! [`reader`], [`tiler`], [`worker`], [`writer`] — one file each.
+//! `reader.rs`, `tiler.rs`, `worker.rs`, `writer.rs` — one file each.
 
 mod failure;
 pub mod plan;
