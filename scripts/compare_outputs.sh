@@ -8,6 +8,10 @@
 # an ISPRS sample with config/airborne.toml and the CycloMedia tile (default pipeline) — the
 # last two from $TESSERA_DATA (default ../shared/data), skipped when missing.
 # Exit 0 when every output is identical, 1 otherwise.
+#
+# SPEED_RUNS=N (default 0) then also times the demo (`tessera demo`, default scene) N times per
+# binary, old and new alternated, and prints the medians of the pipeline time (summary.json
+# seconds.pipeline) and of the whole command's wall time, and their ratios new/old.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OLD=${1:?usage: scripts/compare_outputs.sh OLD_COMMIT [WORKDIR]}
@@ -55,4 +59,31 @@ for c in "${CASES[@]}"; do
   [ "$diff" -eq 0 ] || status=1
   echo "$name: $same files identical, $diff different"
 done
+
+if [ "${SPEED_RUNS:-0}" -gt 0 ]; then
+  echo "== speed: tessera demo, $SPEED_RUNS runs per binary, alternated (old, new, old, ...)"
+  for i in $(seq 1 "$SPEED_RUNS"); do
+    for v in old new; do
+      bin=$OLD_BIN; [ "$v" = new ] && bin=$NEW_BIN
+      d="$W/speed/$v"; rm -rf "$d"; sync
+      t0=$(date +%s.%N)
+      "$bin" -q demo --out "$d" > /dev/null
+      t1=$(date +%s.%N)
+      p=$(python3 -c "import json,sys; print(json.load(open(sys.argv[1]))['seconds']['pipeline'])" "$d/tiles/summary.json")
+      echo "$v $p $(python3 -c "print($t1 - $t0)")" | tee -a "$W/speed.txt"
+    done
+  done
+  python3 - "$W/speed.txt" <<'PY'
+import statistics, sys
+rows = [l.split() for l in open(sys.argv[1]) if l.strip()]
+med = {}
+for v in ("old", "new"):
+    pipe = [float(r[1]) for r in rows if r[0] == v]
+    wall = [float(r[2]) for r in rows if r[0] == v]
+    med[v] = (statistics.median(pipe), statistics.median(wall))
+    print(f"{v}: pipeline median {med[v][0]:.2f} s (runs {', '.join(f'{x:.2f}' for x in pipe)}); "
+          f"demo wall median {med[v][1]:.2f} s")
+print(f"ratio new/old: pipeline {med['new'][0] / med['old'][0]:.3f}, wall {med['new'][1] / med['old'][1]:.3f}")
+PY
+fi
 exit $status
