@@ -7,11 +7,11 @@
 //! a worker takes its output buffer before its job, so the oldest unfinished cloud always has
 //! one and the ordered writer can always make progress.
 
-use super::convert::{message_type_ok, note, McapReport};
 use super::fields::CloudSchema;
 use super::parts::{encode_records, las_header, transforms_near, PartWriter};
 use super::place::{Placed, Placer, Unusable};
 use super::reader::{fmt_ns, ChannelInfo, McapSource, MessageRef, ScanOutcome};
+use super::report::{message_type_ok, note, McapReport};
 use super::tf::{Limits, TfTree};
 use super::wire::Encoding;
 use super::{pointcloud2, McapParams, OnError};
