@@ -134,8 +134,111 @@ pub fn label_ground(
 ) -> GroundLabels {
     let n = normals.len();
     let r2 = (p.radius_m * p.radius_m) as f32;
-    let cos_a = p.angle_deg.to_radians().cos() as f32;
     // 1. Region growing, seeds by ascending surface variation (flattest first).
+    let (region, mut regions) = grow_regions(normals, lab, xyz, nb, p);
+    let grown = regions.len() - 1;
+
+    // 2. Merge small regions into the adjacent region with the nearest a*b* mean (§9.1),
+    // smallest first; a merged region that is still small keeps merging. With training
+    // samples, a region a sample accepts keeps its own class however small it is (§9.2
+    // classifies the grown regions): only regions no sample accepts are merged. Merging
+    // everything small first put thin asphalt strips beside the kerb into the footpath
+    // (a*b* ignores the lightness that tells them apart).
+    let classify = |r: &Region| match (samples, lab) {
+        (Some(s), Some(_)) => s.classify(&r.mean(), p.sigma, p.min_std),
+        _ => None,
+    };
+    let pre_class: Vec<Option<u8>> = regions.iter().map(&classify).collect();
+    let mut parent: Vec<u32> = (0..regions.len() as u32).collect();
+    let mut adj = adjacency(&region, regions.len(), nb, r2);
+    // Geometry mode judges every region on its own roughness and kerbs (merging by a*b*
+    // means nothing without colour); smoothing then cleans the fragments.
+    let merge_small = !(p.geometry && samples.is_none());
+    let mut small: Vec<u32> = (1..regions.len() as u32)
+        .filter(|&r| {
+            merge_small
+                && regions[r as usize].n < p.min_region_points
+                && pre_class[r as usize].is_none()
+        })
+        .collect();
+    small.sort_by_key(|&r| (regions[r as usize].n, r));
+    for r in small {
+        let r = find(&mut parent, r);
+        if regions[r as usize].n >= p.min_region_points {
+            continue;
+        }
+        merge_region(
+            r,
+            &mut regions,
+            &mut adj,
+            &mut parent,
+            &pre_class,
+            p.min_region_points,
+        );
+    }
+    // Final region numbering 1.. in order of first point.
+    let mut renum = vec![0u32; regions.len()];
+    let mut next = 0u32;
+    let mut out_region = vec![0u32; n];
+    for i in 0..n {
+        if region[i] == 0 {
+            continue;
+        }
+        let root = find(&mut parent, region[i]) as usize;
+        if renum[root] == 0 {
+            next += 1;
+            renum[root] = next;
+        }
+        out_region[i] = renum[root];
+    }
+
+    // 3. Supervised classification of each region by its mean colour.
+    let mut class_of_root = vec![unknown; regions.len()];
+    let mut unknown_regions = 0;
+    for (root, &num) in renum.iter().enumerate() {
+        if num == 0 {
+            continue;
+        }
+        let c = pre_class[root].or_else(|| classify(&regions[root]));
+        if c.is_none() {
+            unknown_regions += 1;
+        }
+        class_of_root[root] = c.unwrap_or(unknown);
+    }
+    let mut class: Vec<u8> = (0..n)
+        .map(|i| {
+            if region[i] == 0 {
+                unknown
+            } else {
+                class_of_root[find(&mut parent, region[i]) as usize]
+            }
+        })
+        .collect();
+
+    // 4. kNN majority smoothing (§9.2.6).
+    smooth_labels(&mut class, nb, p.smooth_k);
+    GroundLabels {
+        region: out_region,
+        class,
+        regions: next as usize,
+        regions_grown: grown,
+        regions_unknown: unknown_regions,
+    }
+}
+
+/// Region growing (step 1 of [`label_ground`]), seeds by ascending surface variation
+/// (flattest first). Returns the region per point (0: none) and the regions (index 0 is the
+/// empty "no region").
+fn grow_regions(
+    normals: &[([f32; 3], f32)],
+    lab: Option<&[[f64; 3]]>,
+    xyz: Option<&[[f64; 3]]>,
+    nb: &Neighbours,
+    p: &GroundLabelParams,
+) -> (Vec<u32>, Vec<Region>) {
+    let n = normals.len();
+    let r2 = (p.radius_m * p.radius_m) as f32;
+    let cos_a = p.angle_deg.to_radians().cos() as f32;
     let mut order: Vec<u32> = (0..n as u32).collect();
     order.sort_by(|&a, &b| {
         normals[a as usize]
@@ -201,22 +304,14 @@ pub fn label_ground(
             }
         }
     }
-    let grown = regions.len() - 1;
+    (region, regions)
+}
 
-    // 2. Merge small regions into the adjacent region with the nearest a*b* mean (§9.1),
-    // smallest first; a merged region that is still small keeps merging. With training
-    // samples, a region a sample accepts keeps its own class however small it is (§9.2
-    // classifies the grown regions): only regions no sample accepts are merged. Merging
-    // everything small first put thin asphalt strips beside the kerb into the footpath
-    // (a*b* ignores the lightness that tells them apart).
-    let classify = |r: &Region| match (samples, lab) {
-        (Some(s), Some(_)) => s.classify(&r.mean(), p.sigma, p.min_std),
-        _ => None,
-    };
-    let pre_class: Vec<Option<u8>> = regions.iter().map(&classify).collect();
-    let mut parent: Vec<u32> = (0..regions.len() as u32).collect();
-    let mut adj: Vec<Vec<u32>> = vec![Vec::new(); regions.len()];
-    for a in 0..n {
+/// The regions adjacent to each region (sorted, without duplicates): regions of the
+/// neighbours within the radius (squared: `r2`) of its points.
+fn adjacency(region: &[u32], n_regions: usize, nb: &Neighbours, r2: f32) -> Vec<Vec<u32>> {
+    let mut adj: Vec<Vec<u32>> = vec![Vec::new(); n_regions];
+    for a in 0..region.len() {
         let ra = region[a];
         if ra == 0 {
             continue;
@@ -232,101 +327,50 @@ pub fn label_ground(
         l.sort_unstable();
         l.dedup();
     }
-    // Geometry mode judges every region on its own roughness and kerbs (merging by a*b*
-    // means nothing without colour); smoothing then cleans the fragments.
-    let merge_small = !(p.geometry && samples.is_none());
-    let mut small: Vec<u32> = (1..regions.len() as u32)
-        .filter(|&r| {
-            merge_small
-                && regions[r as usize].n < p.min_region_points
-                && pre_class[r as usize].is_none()
-        })
-        .collect();
-    small.sort_by_key(|&r| (regions[r as usize].n, r));
-    for r in small {
-        let r = find(&mut parent, r);
-        if regions[r as usize].n >= p.min_region_points {
-            continue;
-        }
-        let mut cur = r;
-        loop {
-            let me = regions[cur as usize].mean();
-            let mut best: Option<(f64, u32)> = None;
-            let cands: Vec<u32> = adj[cur as usize].clone();
-            for c in cands {
-                let c = find(&mut parent, c);
-                if c == cur {
-                    continue;
-                }
-                let o = regions[c as usize].mean();
-                let d = ((me[1] - o[1]).powi(2) + (me[2] - o[2]).powi(2)).sqrt();
-                if best.is_none_or(|b| d < b.0 || (d == b.0 && c < b.1)) {
-                    best = Some((d, c));
-                }
-            }
-            let Some((_, t)) = best else { break };
-            parent[cur as usize] = t;
-            let (rn, rl) = (regions[cur as usize].n, regions[cur as usize].lab);
-            let moved = std::mem::take(&mut adj[cur as usize]);
-            let tr = &mut regions[t as usize];
-            tr.n += rn;
-            for (acc, v) in tr.lab.iter_mut().zip(&rl) {
-                *acc += v;
-            }
-            adj[t as usize].extend(moved);
-            if regions[t as usize].n >= p.min_region_points || pre_class[t as usize].is_some() {
-                break;
-            }
-            cur = t;
-        }
-    }
-    // Final region numbering 1.. in order of first point.
-    let mut renum = vec![0u32; regions.len()];
-    let mut next = 0u32;
-    let mut out_region = vec![0u32; n];
-    for i in 0..n {
-        if region[i] == 0 {
-            continue;
-        }
-        let root = find(&mut parent, region[i]) as usize;
-        if renum[root] == 0 {
-            next += 1;
-            renum[root] = next;
-        }
-        out_region[i] = renum[root];
-    }
+    adj
+}
 
-    // 3. Supervised classification of each region by its mean colour.
-    let mut class_of_root = vec![unknown; regions.len()];
-    let mut unknown_regions = 0;
-    for (root, &num) in renum.iter().enumerate() {
-        if num == 0 {
-            continue;
-        }
-        let c = pre_class[root].or_else(|| classify(&regions[root]));
-        if c.is_none() {
-            unknown_regions += 1;
-        }
-        class_of_root[root] = c.unwrap_or(unknown);
-    }
-    let mut class: Vec<u8> = (0..n)
-        .map(|i| {
-            if region[i] == 0 {
-                unknown
-            } else {
-                class_of_root[find(&mut parent, region[i]) as usize]
+/// Merges the small root region `r` into the adjacent region with the nearest a*b* mean (step
+/// 2 of [`label_ground`]), and that one on while it is still small and no sample accepts it.
+/// `parent` are the union-find parents ([`find`]).
+fn merge_region(
+    r: u32,
+    regions: &mut [Region],
+    adj: &mut [Vec<u32>],
+    parent: &mut [u32],
+    pre_class: &[Option<u8>],
+    min_region_points: usize,
+) {
+    let mut cur = r;
+    loop {
+        let me = regions[cur as usize].mean();
+        let mut best: Option<(f64, u32)> = None;
+        let cands: Vec<u32> = adj[cur as usize].clone();
+        for c in cands {
+            let c = find(parent, c);
+            if c == cur {
+                continue;
             }
-        })
-        .collect();
-
-    // 4. kNN majority smoothing (§9.2.6).
-    smooth_labels(&mut class, nb, p.smooth_k);
-    GroundLabels {
-        region: out_region,
-        class,
-        regions: next as usize,
-        regions_grown: grown,
-        regions_unknown: unknown_regions,
+            let o = regions[c as usize].mean();
+            let d = ((me[1] - o[1]).powi(2) + (me[2] - o[2]).powi(2)).sqrt();
+            if best.is_none_or(|b| d < b.0 || (d == b.0 && c < b.1)) {
+                best = Some((d, c));
+            }
+        }
+        let Some((_, t)) = best else { break };
+        parent[cur as usize] = t;
+        let (rn, rl) = (regions[cur as usize].n, regions[cur as usize].lab);
+        let moved = std::mem::take(&mut adj[cur as usize]);
+        let tr = &mut regions[t as usize];
+        tr.n += rn;
+        for (acc, v) in tr.lab.iter_mut().zip(&rl) {
+            *acc += v;
+        }
+        adj[t as usize].extend(moved);
+        if regions[t as usize].n >= min_region_points || pre_class[t as usize].is_some() {
+            break;
+        }
+        cur = t;
     }
 }
 

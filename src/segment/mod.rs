@@ -375,10 +375,72 @@ pub fn segment_at(
     }
     let mut stage = [0.0f64; 6];
     let t0 = Instant::now();
+    let (active, pts, centre) = canonical_order(xyz, mask, origin);
+    stage[0] = t0.elapsed().as_secs_f64();
 
+    let t = Instant::now();
+    let radius = p.r_seed_m.max(p.r_grow_m);
+    let nb = match p.search {
+        NeighbourSearch::KdTree => neighbours::knn_kdtree(&pts, p.k, radius),
+        NeighbourSearch::Auto | NeighbourSearch::VoxelGrid => {
+            neighbours::knn_voxel(&pts, p.k, radius)
+        }
+    };
+    stage[1] = t.elapsed().as_secs_f64();
+
+    let t = Instant::now();
+    let normals = features::normals(&pts, &nb, p.r_grow_m);
+    stage[2] = t.elapsed().as_secs_f64();
+
+    let t = Instant::now();
+    let scale = rgb.map(|c| if rgb_is_8bit(c) { 255.0 } else { 65535.0 });
+    let lab = colour_lab(rgb.zip(scale), &active, &nb, p);
+    stage[3] = t.elapsed().as_secs_f64();
+
+    let t = Instant::now();
+    let mut order: Vec<u32> = (0..pts.len() as u32).collect();
+    order.par_sort_unstable_by(|&a, &b| {
+        normals[a as usize]
+            .1
+            .total_cmp(&normals[b as usize].1)
+            .then(a.cmp(&b))
+    });
+    let inp = grow::Input {
+        pts: &pts,
+        lab: lab.as_deref(),
+        nb: &nb,
+        normals: &normals,
+        order: &order,
+    };
+    let grown = grow::grow(&inp, p);
+    stage[4] = t.elapsed().as_secs_f64();
+
+    let t = Instant::now();
+    let (labels, segments) = segment_output(&grown, &active, &pts, centre, (rgb, scale), n_in, p);
+    stage[5] = t.elapsed().as_secs_f64();
+    Ok(SegOutput {
+        labels,
+        segments,
+        stats: SegStats {
+            points: pts.len(),
+            seeds_tried: grown.seeds_tried,
+            eligible_attached: grown.eligible_attached,
+            stage_s: stage,
+        },
+    })
+}
+
+/// The points taking part (mask true, finite coordinates) in canonical order, their
+/// coordinates relative to the centre, and the centre (`origin`, else the bounding-box
+/// centre).
+fn canonical_order(
+    xyz: &[[f64; 3]],
+    mask: Option<&[bool]>,
+    origin: Option<[f64; 3]>,
+) -> (Vec<u32>, Vec<[f64; 3]>, [f64; 3]) {
     // Canonical order. Without an origin, centre on the bounding-box centre (min/max do not
     // depend on point order, a summed centroid would).
-    let mut active: Vec<u32> = (0..n_in as u32)
+    let mut active: Vec<u32> = (0..xyz.len() as u32)
         .filter(|&i| {
             mask.is_none_or(|m| m[i as usize]) && xyz[i as usize].iter().all(|v| v.is_finite())
         })
@@ -424,34 +486,27 @@ pub fn segment_at(
             [p[0] - centre[0], p[1] - centre[1], p[2] - centre[2]]
         })
         .collect();
-    stage[0] = t0.elapsed().as_secs_f64();
+    (active, pts, centre)
+}
 
-    let t = Instant::now();
-    let radius = p.r_seed_m.max(p.r_grow_m);
-    let nb = match p.search {
-        NeighbourSearch::KdTree => neighbours::knn_kdtree(&pts, p.k, radius),
-        NeighbourSearch::Auto | NeighbourSearch::VoxelGrid => {
-            neighbours::knn_voxel(&pts, p.k, radius)
-        }
-    };
-    stage[1] = t.elapsed().as_secs_f64();
-
-    let t = Instant::now();
-    let normals = features::normals(&pts, &nb, p.r_grow_m);
-    stage[2] = t.elapsed().as_secs_f64();
-
-    let t = Instant::now();
-    let scale = rgb.map(|c| if rgb_is_8bit(c) { 255.0 } else { 65535.0 });
-    let rgb01: Option<Vec<[f32; 3]>> = rgb.zip(scale).map(|(c, s)| {
+/// CIELab colour per point (in canonical order) when `p.colour` is set, from the input colour
+/// and its full scale (255 or 65535), vector-median filtered if asked.
+fn colour_lab(
+    rgb: Option<(&[[u16; 3]], f64)>,
+    active: &[u32],
+    nb: &neighbours::Neighbours,
+    p: &SegParams,
+) -> Option<Vec<[f32; 3]>> {
+    let rgb01: Option<Vec<[f32; 3]>> = rgb.map(|(c, s)| {
         active
             .iter()
             .map(|&i| c[i as usize].map(|v| (v as f64 / s) as f32))
             .collect()
     });
-    let lab: Option<Vec<[f32; 3]>> = rgb01.as_ref().filter(|_| p.colour).map(|c01| {
+    rgb01.as_ref().filter(|_| p.colour).map(|c01| {
         let filtered;
         let src = if p.vector_median {
-            filtered = features::vector_median(c01, &nb, p.vmf_k);
+            filtered = features::vector_median(c01, nb, p.vmf_k);
             &filtered
         } else {
             c01
@@ -459,29 +514,21 @@ pub fn segment_at(
         src.par_iter()
             .map(|c| rgb_to_lab(c.map(f64::from), p.lab).map(|v| v as f32))
             .collect()
-    });
-    stage[3] = t.elapsed().as_secs_f64();
+    })
+}
 
-    let t = Instant::now();
-    let mut order: Vec<u32> = (0..pts.len() as u32).collect();
-    order.par_sort_unstable_by(|&a, &b| {
-        normals[a as usize]
-            .1
-            .total_cmp(&normals[b as usize].1)
-            .then(a.cmp(&b))
-    });
-    let inp = grow::Input {
-        pts: &pts,
-        lab: lab.as_deref(),
-        nb: &nb,
-        normals: &normals,
-        order: &order,
-    };
-    let grown = grow::grow(&inp, p);
-    stage[4] = t.elapsed().as_secs_f64();
-
-    let t = Instant::now();
-    // Dissolve small segments, then number the rest by their first point in canonical order.
+/// Dissolves small segments, numbers the rest by their first point in canonical order and
+/// describes them: the label per input point and the segments. `(rgb, scale)` are the input
+/// colour and its full scale.
+fn segment_output(
+    grown: &grow::Grown,
+    active: &[u32],
+    pts: &[[f64; 3]],
+    centre: [f64; 3],
+    (rgb, scale): (Option<&[[u16; 3]]>, Option<f64>),
+    n_in: usize,
+    p: &SegParams,
+) -> (Vec<u32>, Vec<SegmentInfo>) {
     let mut count = vec![0usize; grown.segs.len() + 1];
     for &l in &grown.labels {
         count[l as usize] += 1;
@@ -542,15 +589,5 @@ pub fn segment_at(
             }
         })
         .collect();
-    stage[5] = t.elapsed().as_secs_f64();
-    Ok(SegOutput {
-        labels,
-        segments,
-        stats: SegStats {
-            points: pts.len(),
-            seeds_tried: grown.seeds_tried,
-            eligible_attached: grown.eligible_attached,
-            stage_s: stage,
-        },
-    })
+    (labels, segments)
 }

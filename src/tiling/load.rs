@@ -108,25 +108,13 @@ pub fn split_job(
     let SplitParams {
         min_tile_size_m,
         buffer_bytes,
-        max_points,
         near_m,
         far,
+        ..
     } = params;
     let half = job.core.width() / 2.0;
     if half < min_tile_size_m {
-        return Err(Error::Budget(format!(
-            "tile {}: {} points (core {} + buffer {}, {} of them within {} m of the core) in {:.3} m × {:.3} m exceed what a tile may hold at this memory budget (about {} points), and splitting further would go below tiling.min_tile_size_m = {} m; raise --memory-budget, use fewer --threads (each worker holds one tile), or narrow the stages' contexts (segment.context_m, label.context_m) or tiling.buffer_m",
-            job.name,
-            job.n_core + job.n_buf,
-            job.n_core,
-            job.n_buf,
-            job.n_near,
-            near_m,
-            job.core.width(),
-            job.core.width(),
-            max_points,
-            min_tile_size_m
-        )));
+        return Err(too_dense(&job, &params));
     }
     let quads: Vec<_> = (0u8..4)
         .map(|q| (job.id.child(q), job.core.quadrant(q)))
@@ -135,88 +123,19 @@ pub fn split_job(
     let mut set = SpillSet::new(spill_dir, buffer_bytes);
     let slots: Vec<usize> = quads.iter().map(|(cid, _)| set.slot(*cid)).collect();
     let b = job.buffer_m;
-    let xm = 0.5 * (job.core.x0 + job.core.x1);
-    let ym = 0.5 * (job.core.y0 + job.core.y1);
-    let outer: Vec<Rect> = quads.iter().map(|(_, r)| r.expanded(b)).collect();
-    let counted: Vec<Rect> = quads.iter().map(|(_, r)| r.expanded(near_m)).collect();
-    // Per child, the range of far-grid cells touching its near zone: those are kept whole.
-    let cell_m = far.map_or(1.0, |f| f.cells.cell_m);
-    let near: Vec<Option<[i64; 4]>> = quads
-        .iter()
-        .map(|(_, r)| {
-            far.filter(|f| f.near_m < b).map(|f| {
-                let n = r.expanded(f.near_m);
-                [
-                    cell_of(n.x0, cell_m),
-                    cell_of(n.y0, cell_m),
-                    cell_of(n.x1, cell_m),
-                    cell_of(n.y1, cell_m),
-                ]
-            })
-        })
-        .collect();
+    let rects: Vec<Rect> = quads.iter().map(|(_, r)| *r).collect();
+    let routing = Routing::new(&job, &rects, near_m, far);
     // Without thinning the keepers stay empty (`near` is None for every child).
     let rule = far.map_or(
         FarCells {
-            cell_m,
+            cell_m: routing.cell_m,
             window_m: 0.0,
         },
         |f| f.cells,
     );
     let mut keepers: Vec<FarKeeper> = (0..4).map(|_| FarKeeper::new(rule, rl)).collect();
-    // The far cell of a point for child q, None when the child keeps it in full.
-    let far_cell = |q: usize, x: f64, y: f64| -> Option<(i64, i64)> {
-        let [cx0, cy0, cx1, cy1] = near[q]?;
-        let (cx, cy) = (cell_of(x, cell_m), cell_of(y, cell_m));
-        let inside = (cx0..=cx1).contains(&cx) && (cy0..=cy1).contains(&cy);
-        (!inside).then_some((cx, cy))
-    };
-    let parts = [(&job.core_part, true), (&job.buf_part, false)];
-    for (part, parent_core) in parts {
-        part.for_each(rl, BLOCK_POINTS, |pid, rec| {
-            let [x, y, z] = layout.xyz(rec);
-            // A parent core point belongs to exactly one child core, decided by the midlines
-            // so that rounding can never drop or duplicate it.
-            let core_q = parent_core.then_some((x >= xm) as usize | (((y >= ym) as usize) << 1));
-            for q in 0..4 {
-                if core_q == Some(q) {
-                    set.push(slots[q], Part::Core, pid, rec)?;
-                } else if outer[q].contains(x, y) {
-                    match far_cell(q, x, y) {
-                        Some(key) => keepers[q].offer(key, z, pid, rec),
-                        None => {
-                            set.push(slots[q], Part::Buffer, pid, rec)?;
-                            if counted[q].contains(x, y) {
-                                set.count_near(slots[q]);
-                            }
-                        }
-                    }
-                }
-            }
-            Ok(())
-        })?;
-    }
-    // Cells whose lowest points left their representative open (a run of sparse low points):
-    // a second pass collects all their points. Rare: 96 of ~270 k far cells over the 6.25 m
-    // leaves of the CycloMedia tile.
-    let undecided: Vec<_> = keepers.iter_mut().map(|k| k.undecided()).collect();
-    if undecided.iter().any(|u| !u.is_empty()) {
-        for (part, parent_core) in parts {
-            part.for_each(rl, BLOCK_POINTS, |pid, rec| {
-                let [x, y, z] = layout.xyz(rec);
-                let core_q =
-                    parent_core.then_some((x >= xm) as usize | (((y >= ym) as usize) << 1));
-                for q in 0..4 {
-                    if core_q != Some(q) && !undecided[q].is_empty() && outer[q].contains(x, y) {
-                        if let Some(key) = far_cell(q, x, y).filter(|k| undecided[q].contains(k)) {
-                            keepers[q].offer_all(key, z, pid, rec);
-                        }
-                    }
-                }
-                Ok(())
-            })?;
-        }
-    }
+    routing.distribute(&job, layout, &mut set, &slots, &mut keepers)?;
+    routing.collect_undecided(&job, layout, &mut keepers)?;
     remove_spill(&mut job);
     let mut thinned = 0;
     for (q, keeper) in keepers.into_iter().enumerate() {
@@ -257,6 +176,167 @@ pub fn split_job(
         )));
     }
     Ok((out, thinned))
+}
+
+/// The budget error of a tile too dense to hold that cannot be split further.
+fn too_dense(job: &TileJob, params: &SplitParams) -> Error {
+    let SplitParams {
+        min_tile_size_m,
+        max_points,
+        near_m,
+        ..
+    } = *params;
+    Error::Budget(format!(
+        "tile {}: {} points (core {} + buffer {}, {} of them within {} m of the core) in {:.3} m × {:.3} m exceed what a tile may hold at this memory budget (about {} points), and splitting further would go below tiling.min_tile_size_m = {} m; raise --memory-budget, use fewer --threads (each worker holds one tile), or narrow the stages' contexts (segment.context_m, label.context_m) or tiling.buffer_m",
+        job.name,
+        job.n_core + job.n_buf,
+        job.n_core,
+        job.n_buf,
+        job.n_near,
+        near_m,
+        job.core.width(),
+        job.core.width(),
+        max_points,
+        min_tile_size_m
+    ))
+}
+
+/// Where the points of a tile being split go: its four children (by quadrant), their buffers
+/// and far cells.
+struct Routing {
+    /// The parent core's midlines.
+    xm: f64,
+    ym: f64,
+    /// Per child, its core expanded by the buffer width.
+    outer: Vec<Rect>,
+    /// Per child, its core expanded by `near_m` (buffer points counted in `n_near`).
+    counted: Vec<Rect>,
+    /// Per child, the range of far-grid cells touching its near zone: those are kept whole.
+    /// None: the child keeps its whole buffer.
+    near: Vec<Option<[i64; 4]>>,
+    /// Far cell size, metres.
+    cell_m: f64,
+}
+
+impl Routing {
+    /// The routing of `job`'s points to the children with cores `rects`.
+    fn new(job: &TileJob, rects: &[Rect], near_m: f64, far: Option<FarThin>) -> Self {
+        let b = job.buffer_m;
+        let xm = 0.5 * (job.core.x0 + job.core.x1);
+        let ym = 0.5 * (job.core.y0 + job.core.y1);
+        let outer: Vec<Rect> = rects.iter().map(|r| r.expanded(b)).collect();
+        let counted: Vec<Rect> = rects.iter().map(|r| r.expanded(near_m)).collect();
+        let cell_m = far.map_or(1.0, |f| f.cells.cell_m);
+        let near: Vec<Option<[i64; 4]>> = rects
+            .iter()
+            .map(|r| {
+                far.filter(|f| f.near_m < b).map(|f| {
+                    let n = r.expanded(f.near_m);
+                    [
+                        cell_of(n.x0, cell_m),
+                        cell_of(n.y0, cell_m),
+                        cell_of(n.x1, cell_m),
+                        cell_of(n.y1, cell_m),
+                    ]
+                })
+            })
+            .collect();
+        Routing {
+            xm,
+            ym,
+            outer,
+            counted,
+            near,
+            cell_m,
+        }
+    }
+
+    /// The child core a point belongs to: for a parent core point exactly one, decided by the
+    /// midlines so that rounding can never drop or duplicate it; None for a buffer point.
+    fn core_child(&self, parent_core: bool, x: f64, y: f64) -> Option<usize> {
+        parent_core.then_some((x >= self.xm) as usize | (((y >= self.ym) as usize) << 1))
+    }
+
+    /// The far cell of a point for child q, None when the child keeps it in full.
+    fn far_cell(&self, q: usize, x: f64, y: f64) -> Option<(i64, i64)> {
+        let [cx0, cy0, cx1, cy1] = self.near[q]?;
+        let (cx, cy) = (cell_of(x, self.cell_m), cell_of(y, self.cell_m));
+        let inside = (cx0..=cx1).contains(&cx) && (cy0..=cy1).contains(&cy);
+        (!inside).then_some((cx, cy))
+    }
+
+    /// First pass over the parent's points: core and near buffer points into the children's
+    /// spill files (`slots` in `set`), far buffer points offered to the children's `keepers`.
+    fn distribute(
+        &self,
+        job: &TileJob,
+        layout: &RecordLayout,
+        set: &mut SpillSet,
+        slots: &[usize],
+        keepers: &mut [FarKeeper],
+    ) -> Result<()> {
+        let rl = layout.record_len;
+        let parts = [(&job.core_part, true), (&job.buf_part, false)];
+        for (part, parent_core) in parts {
+            part.for_each(rl, BLOCK_POINTS, |pid, rec| {
+                let [x, y, z] = layout.xyz(rec);
+                let core_q = self.core_child(parent_core, x, y);
+                for q in 0..4 {
+                    if core_q == Some(q) {
+                        set.push(slots[q], Part::Core, pid, rec)?;
+                    } else if self.outer[q].contains(x, y) {
+                        match self.far_cell(q, x, y) {
+                            Some(key) => keepers[q].offer(key, z, pid, rec),
+                            None => {
+                                set.push(slots[q], Part::Buffer, pid, rec)?;
+                                if self.counted[q].contains(x, y) {
+                                    set.count_near(slots[q]);
+                                }
+                            }
+                        }
+                    }
+                }
+                Ok(())
+            })?;
+        }
+        Ok(())
+    }
+
+    /// Cells whose lowest points left their representative open (a run of sparse low points):
+    /// a second pass collects all their points. Rare: 96 of ~270 k far cells over the 6.25 m
+    /// leaves of the CycloMedia tile.
+    fn collect_undecided(
+        &self,
+        job: &TileJob,
+        layout: &RecordLayout,
+        keepers: &mut [FarKeeper],
+    ) -> Result<()> {
+        let rl = layout.record_len;
+        let parts = [(&job.core_part, true), (&job.buf_part, false)];
+        let undecided: Vec<_> = keepers.iter_mut().map(|k| k.undecided()).collect();
+        if undecided.iter().any(|u| !u.is_empty()) {
+            for (part, parent_core) in parts {
+                part.for_each(rl, BLOCK_POINTS, |pid, rec| {
+                    let [x, y, z] = layout.xyz(rec);
+                    let core_q = self.core_child(parent_core, x, y);
+                    for q in 0..4 {
+                        if core_q != Some(q)
+                            && !undecided[q].is_empty()
+                            && self.outer[q].contains(x, y)
+                        {
+                            if let Some(key) =
+                                self.far_cell(q, x, y).filter(|k| undecided[q].contains(k))
+                            {
+                                keepers[q].offer_all(key, z, pid, rec);
+                            }
+                        }
+                    }
+                    Ok(())
+                })?;
+            }
+        }
+        Ok(())
+    }
 }
 
 /// Lowest points held per far cell while splitting. The representative is nearly always among

@@ -19,10 +19,10 @@
 //! Modules: [`wire`] (ROS 1 / CDR primitives), [`pointcloud2`] (the cloud message and field
 //! access), [`tf`] (pose messages, transform tree, interpolation), [`trajectory`] (CSV poses),
 //! [`reader`] (memory-mapped, chunk-streaming MCAP access), [`fields`] (which cloud fields go
-//! where in LAS), [`convert`] (the two passes, the report, staging the inputs of a run),
-//! [`clouds`] (pass 2: parallel placing, ordered writing), [`place`] (one cloud into the
-//! world), [`parts`] (LAS parts), [`encode`] (CDR writing for the simulated drive), [`mod@info`]
-//! (`tessera info`).
+//! where in LAS), [`convert`] (the two passes, staging the inputs of a run), [`report`] (what
+//! a conversion reports), [`clouds`] (pass 2: parallel placing, ordered writing), [`place`]
+//! (one cloud into the world), [`parts`] (LAS parts), [`encode`] (CDR writing for the
+//! simulated drive), [`mod@info`] (`tessera info`).
 
 pub mod clouds;
 pub mod convert;
@@ -33,15 +33,15 @@ pub mod parts;
 pub mod place;
 pub mod pointcloud2;
 pub mod reader;
+pub mod report;
 pub mod tf;
 pub mod trajectory;
 pub mod wire;
 
-pub use convert::{
-    convert_file, convert_file_with, stage_inputs, Conversion, McapReport, StagedInputs,
-};
+pub use convert::{convert_file, convert_file_with, stage_inputs, Conversion, StagedInputs};
 pub use info::{info, McapInfo};
 pub use reader::McapSource;
+pub use report::McapReport;
 
 /// The 8 bytes every MCAP file starts (and ends) with.
 pub const MAGIC: &[u8] = mcap::MAGIC;

@@ -7,13 +7,7 @@ use super::{DataMode, FieldType, PcdError, PcdField, PcdHeader};
 pub fn parse_header(bytes: &[u8]) -> Result<(PcdHeader, usize, usize), PcdError> {
     let mut pos = 0usize;
     let mut line_no = 0usize;
-    let mut version = None;
-    let mut names: Option<Vec<String>> = None;
-    let mut sizes: Option<Vec<usize>> = None;
-    let mut types: Option<Vec<char>> = None;
-    let mut counts: Option<Vec<usize>> = None;
-    let (mut width, mut height, mut points) = (None, None, None);
-    let mut viewpoint = [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0];
+    let mut keywords = Keywords::default();
     let data = loop {
         if pos >= bytes.len() {
             return Err(PcdError::MissingHeader("DATA"));
@@ -30,6 +24,47 @@ pub fn parse_header(bytes: &[u8]) -> Result<(PcdHeader, usize, usize), PcdError>
         if line.is_empty() || line.starts_with('#') {
             continue;
         }
+        if let Some(data) = keywords.read_line(line, line_no)? {
+            break data;
+        }
+    };
+    let header = keywords.finish(data)?;
+    Ok((header, pos, line_no))
+}
+
+/// The header keywords read so far.
+struct Keywords {
+    version: Option<String>,
+    names: Option<Vec<String>>,
+    sizes: Option<Vec<usize>>,
+    types: Option<Vec<char>>,
+    counts: Option<Vec<usize>>,
+    width: Option<usize>,
+    height: Option<usize>,
+    points: Option<usize>,
+    viewpoint: [f64; 7],
+}
+
+impl Default for Keywords {
+    fn default() -> Self {
+        Keywords {
+            version: None,
+            names: None,
+            sizes: None,
+            types: None,
+            counts: None,
+            width: None,
+            height: None,
+            points: None,
+            viewpoint: [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
+        }
+    }
+}
+
+impl Keywords {
+    /// Reads one (trimmed, non-empty, non-comment) header line; returns the data mode when it
+    /// is the `DATA` line, which ends the header.
+    fn read_line(&mut self, line: &str, line_no: usize) -> Result<Option<DataMode>, PcdError> {
         let bad = |reason: String| PcdError::BadHeaderLine {
             line_no,
             line: line.to_string(),
@@ -55,10 +90,10 @@ pub fn parse_header(bytes: &[u8]) -> Result<(PcdHeader, usize, usize), PcdError>
                 .collect()
         };
         match key {
-            "VERSION" => version = rest.first().map(|v| v.to_string()),
+            "VERSION" => self.version = rest.first().map(|v| v.to_string()),
             // COLUMNS is the pre-0.6 name of FIELDS.
-            "FIELDS" | "COLUMNS" => names = Some(rest.iter().map(|s| s.to_string()).collect()),
-            "SIZE" => sizes = Some(usizes(&rest)?),
+            "FIELDS" | "COLUMNS" => self.names = Some(rest.iter().map(|s| s.to_string()).collect()),
+            "SIZE" => self.sizes = Some(usizes(&rest)?),
             "TYPE" => {
                 let t = rest
                     .iter()
@@ -67,101 +102,106 @@ pub fn parse_header(bytes: &[u8]) -> Result<(PcdHeader, usize, usize), PcdError>
                         other => Err(bad(format!("type {other:?} is not I, U or F"))),
                     })
                     .collect::<Result<Vec<char>, PcdError>>()?;
-                types = Some(t);
+                self.types = Some(t);
             }
-            "COUNT" => counts = Some(usizes(&rest)?),
-            "WIDTH" => width = Some(one_usize(&rest)?),
-            "HEIGHT" => height = Some(one_usize(&rest)?),
-            "POINTS" => points = Some(one_usize(&rest)?),
+            "COUNT" => self.counts = Some(usizes(&rest)?),
+            "WIDTH" => self.width = Some(one_usize(&rest)?),
+            "HEIGHT" => self.height = Some(one_usize(&rest)?),
+            "POINTS" => self.points = Some(one_usize(&rest)?),
             "VIEWPOINT" => {
                 if rest.len() != 7 {
                     return Err(bad(format!("expected 7 numbers, found {}", rest.len())));
                 }
                 for (k, v) in rest.iter().enumerate() {
-                    viewpoint[k] = v
+                    self.viewpoint[k] = v
                         .parse()
                         .map_err(|_| bad(format!("{v:?} is not a number")))?;
                 }
             }
             "DATA" => {
                 let mode = rest.first().copied().unwrap_or_default();
-                break match mode.to_ascii_lowercase().as_str() {
+                return Ok(Some(match mode.to_ascii_lowercase().as_str() {
                     "ascii" => DataMode::Ascii,
                     "binary" => DataMode::Binary,
                     "binary_compressed" => DataMode::BinaryCompressed,
                     _ => return Err(PcdError::UnsupportedDataMode(mode.to_string())),
-                };
+                }));
             }
             other => return Err(bad(format!("unknown keyword {other:?}"))),
         }
-    };
-    let names = names.ok_or(PcdError::MissingHeader("FIELDS"))?;
-    let sizes = sizes.ok_or(PcdError::MissingHeader("SIZE"))?;
-    let types = types.ok_or(PcdError::MissingHeader("TYPE"))?;
-    let counts = counts.unwrap_or_else(|| vec![1; names.len()]);
-    for (what, len) in [
-        ("SIZE", sizes.len()),
-        ("TYPE", types.len()),
-        ("COUNT", counts.len()),
-    ] {
-        if len != names.len() {
-            return Err(PcdError::Inconsistent(format!(
-                "FIELDS names {} fields but {what} has {len} entries",
-                names.len()
-            )));
-        }
+        Ok(None)
     }
-    let mut fields = Vec::with_capacity(names.len());
-    for (((name, size), t), count) in names.into_iter().zip(sizes).zip(types).zip(counts) {
-        let ty = match t {
-            'I' => FieldType::Signed,
-            'U' => FieldType::Unsigned,
-            _ => FieldType::Float,
-        };
-        let valid = match ty {
-            FieldType::Float => size == 4 || size == 8,
-            _ => matches!(size, 1 | 2 | 4 | 8),
-        };
-        if !valid {
-            return Err(PcdError::UnsupportedType {
-                field: name,
-                ty: t,
+
+    /// Checks the keywords read for completeness and consistency; the header with data mode
+    /// `data`.
+    fn finish(self, data: DataMode) -> Result<PcdHeader, PcdError> {
+        let names = self.names.ok_or(PcdError::MissingHeader("FIELDS"))?;
+        let sizes = self.sizes.ok_or(PcdError::MissingHeader("SIZE"))?;
+        let types = self.types.ok_or(PcdError::MissingHeader("TYPE"))?;
+        let counts = self.counts.unwrap_or_else(|| vec![1; names.len()]);
+        for (what, len) in [
+            ("SIZE", sizes.len()),
+            ("TYPE", types.len()),
+            ("COUNT", counts.len()),
+        ] {
+            if len != names.len() {
+                return Err(PcdError::Inconsistent(format!(
+                    "FIELDS names {} fields but {what} has {len} entries",
+                    names.len()
+                )));
+            }
+        }
+        let mut fields = Vec::with_capacity(names.len());
+        for (((name, size), t), count) in names.into_iter().zip(sizes).zip(types).zip(counts) {
+            let ty = match t {
+                'I' => FieldType::Signed,
+                'U' => FieldType::Unsigned,
+                _ => FieldType::Float,
+            };
+            let valid = match ty {
+                FieldType::Float => size == 4 || size == 8,
+                _ => matches!(size, 1 | 2 | 4 | 8),
+            };
+            if !valid {
+                return Err(PcdError::UnsupportedType {
+                    field: name,
+                    ty: t,
+                    size,
+                    note: "",
+                });
+            }
+            if count == 0 {
+                return Err(PcdError::Inconsistent(format!(
+                    "field {name:?} has COUNT 0"
+                )));
+            }
+            fields.push(PcdField {
+                name,
                 size,
-                note: "",
+                ty,
+                count,
             });
         }
-        if count == 0 {
+        let height = self.height.unwrap_or(1);
+        let (width, points) = match (self.width, self.points) {
+            (Some(w), Some(p)) => (w, p),
+            (Some(w), None) => (w, w * height),
+            (None, Some(p)) => (p / height.max(1), p),
+            (None, None) => return Err(PcdError::MissingHeader("POINTS or WIDTH")),
+        };
+        if width * height != points {
             return Err(PcdError::Inconsistent(format!(
-                "field {name:?} has COUNT 0"
+                "WIDTH {width} × HEIGHT {height} is not POINTS {points}"
             )));
         }
-        fields.push(PcdField {
-            name,
-            size,
-            ty,
-            count,
-        });
+        Ok(PcdHeader {
+            version: self.version,
+            fields,
+            width,
+            height,
+            viewpoint: self.viewpoint,
+            points,
+            data,
+        })
     }
-    let height = height.unwrap_or(1);
-    let (width, points) = match (width, points) {
-        (Some(w), Some(p)) => (w, p),
-        (Some(w), None) => (w, w * height),
-        (None, Some(p)) => (p / height.max(1), p),
-        (None, None) => return Err(PcdError::MissingHeader("POINTS or WIDTH")),
-    };
-    if width * height != points {
-        return Err(PcdError::Inconsistent(format!(
-            "WIDTH {width} × HEIGHT {height} is not POINTS {points}"
-        )));
-    }
-    let header = PcdHeader {
-        version,
-        fields,
-        width,
-        height,
-        viewpoint,
-        points,
-        data,
-    };
-    Ok((header, pos, line_no))
 }
