@@ -39,6 +39,10 @@ pub struct RunOpts {
     /// the files that run recorded are removed first; other files are never touched.
     #[arg(long)]
     pub overwrite: bool,
+    /// Skip unreadable inputs and failed tiles, list them in summary.json and finish the
+    /// rest; exit code 3 when anything was skipped (pipeline.keep_going).
+    #[arg(long)]
+    pub keep_going: bool,
 }
 
 impl RunOpts {
@@ -53,6 +57,9 @@ impl RunOpts {
         }
         if self.overwrite {
             v.push("output.overwrite=true".into());
+        }
+        if self.keep_going {
+            v.push("pipeline.keep_going=true".into());
         }
         v
     }

@@ -43,6 +43,10 @@ pub struct PipelineParams {
     pub threads: usize,
     /// Spill directory ("" = inside the output directory).
     pub spill_dir: String,
+    /// Skip inputs that cannot be read and tiles whose processing fails, list them in the
+    /// summary and finish the rest (exit code 3) instead of stopping the run.
+    #[serde(default)]
+    pub keep_going: bool,
 }
 
 /// Output parameters.

@@ -77,6 +77,18 @@ pub enum Error {
     /// An internal invariant was violated (a bug): the run stops rather than lose data.
     #[error("internal error: {0}")]
     Internal(String),
+    /// A `keep_going` run finished, but left inputs or tiles out (listed in its summary).
+    #[error("the run finished without {skipped} unreadable input(s) and {failed} failed tile(s) ({points} core points not written); they are listed in {}", summary.display())]
+    Incomplete {
+        /// Inputs left out.
+        skipped: usize,
+        /// Tiles left out.
+        failed: usize,
+        /// Core points of the failed tiles.
+        points: u64,
+        /// The run's summary.json.
+        summary: PathBuf,
+    },
 }
 
 impl Error {
@@ -99,6 +111,15 @@ impl Error {
         Error::BadInput {
             path: path.into(),
             reason: reason.into(),
+        }
+    }
+    /// The process exit code for this error: 2 for usage and configuration errors, 3 for a
+    /// `--keep-going` run that finished but left inputs or tiles out, 1 otherwise.
+    pub fn exit_code(&self) -> u8 {
+        match self {
+            Error::Incomplete { .. } => 3,
+            e if e.is_usage() => 2,
+            _ => 1,
         }
     }
     /// True for errors caused by the user's input or settings rather than by processing.

@@ -1,5 +1,6 @@
 //! Thin binary: parse → command → exit code (0 ok, 1 processing error, 2 usage or
-//! configuration error). Each command lives in its own file under `commands/`.
+//! configuration error, 3 a `--keep-going` run that finished but left inputs or tiles out).
+//! Each command lives in its own file under `commands/`.
 
 mod commands;
 
@@ -39,11 +40,7 @@ fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {}", chain(&e));
-            let usage = e
-                .downcast_ref::<Error>()
-                .map(|e| e.is_usage())
-                .unwrap_or(false);
-            ExitCode::from(if usage { 2 } else { 1 })
+            ExitCode::from(e.downcast_ref::<Error>().map_or(1, Error::exit_code))
         }
     }
 }

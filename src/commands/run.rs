@@ -28,5 +28,14 @@ pub fn process(inputs: &[PathBuf], out: &Path, cfg: &Config, quiet: bool) -> any
         s.memory_budget_mb,
         out.join("summary.json").display()
     );
+    if s.is_incomplete() {
+        return Err(tessera::Error::Incomplete {
+            skipped: s.skipped_inputs.len(),
+            failed: s.failed_tiles.len(),
+            points: s.points_failed,
+            summary: out.join("summary.json"),
+        }
+        .into());
+    }
     Ok(())
 }

@@ -445,12 +445,58 @@ fn base_format(mut f: Format) -> Format {
 
 /// Reads every header, validates, and plans the run's record layout.
 pub fn scan_inputs(inputs: &[PathBuf], point_format: Option<u8>) -> Result<InputSet> {
+    scan_inputs_skipping(inputs, point_format, false).map(|(set, _)| set)
+}
+
+/// An input a `keep_going` run left out, and why.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct SkippedInput {
+    /// The file.
+    pub path: PathBuf,
+    /// What was wrong with it.
+    pub error: String,
+}
+
+/// Like [`scan_inputs`]; with `keep_going`, an input that cannot be scanned is left out and
+/// returned with its error instead of failing the run (the others are numbered as if it had
+/// never been given). Fails when no input is left.
+pub fn scan_inputs_skipping(
+    inputs: &[PathBuf],
+    point_format: Option<u8>,
+    keep_going: bool,
+) -> Result<(InputSet, Vec<SkippedInput>)> {
     let paths = expand_paths(inputs)?;
-    let files: Vec<InputFile> = paths
-        .iter()
-        .enumerate()
-        .map(|(i, p)| scan_file(p, i))
-        .collect::<Result<_>>()?;
+    let mut files: Vec<InputFile> = Vec::with_capacity(paths.len());
+    let mut skipped = Vec::new();
+    for p in &paths {
+        match scan_file(p, files.len()) {
+            Ok(f) => files.push(f),
+            Err(e) if keep_going => {
+                tracing::warn!("skipping input {}: {e}", p.display());
+                skipped.push(SkippedInput {
+                    path: p.clone(),
+                    error: e.to_string(),
+                });
+            }
+            Err(e) => return Err(e),
+        }
+    }
+    if files.is_empty() {
+        return Err(Error::Data(format!(
+            "none of the {} inputs could be read (first: {}: {})",
+            skipped.len(),
+            skipped
+                .first()
+                .map(|s| s.path.display().to_string())
+                .unwrap_or_default(),
+            skipped.first().map(|s| s.error.as_str()).unwrap_or("")
+        )));
+    }
+    Ok((assemble(files, point_format)?, skipped))
+}
+
+/// The run's input set from scanned files.
+fn assemble(files: Vec<InputFile>, point_format: Option<u8>) -> Result<InputSet> {
     refuse_copies(&files)?;
     if files.len() as u64 >= (1 << 23) {
         return Err(Error::Config(

@@ -98,6 +98,7 @@ pub fn run_with_stages(
     summary.points_in = plan.set.total_points;
     summary.memory_budget_mb = cfg.pipeline.memory_budget_mb;
     summary.point_format = plan.set.layout.format.to_u8().unwrap_or(255);
+    summary.skipped_inputs = plan.skipped_inputs.clone();
     if let Some(st) = &summary.stitch {
         if st.frontier_bytes_max > plan.budget.stitch_bytes {
             tracing::warn!(
@@ -110,11 +111,13 @@ pub fn run_with_stages(
     summary.budget = Some(plan.budget.clone());
     summary.peak_rss_mb = peak_rss_mb().unwrap_or(0.0);
     // Every point the headers promise was read (the reader checks each file's count), and
-    // every point read was written exactly once.
-    if summary.points_read != summary.points_in || summary.points_out != summary.points_in {
+    // every point read was written exactly once, or belongs to a tile listed as failed.
+    if summary.points_read != summary.points_in
+        || summary.points_out + summary.points_failed != summary.points_in
+    {
         return Err(Error::Internal(format!(
-            "the input headers promise {} points; {} were read and {} written",
-            summary.points_in, summary.points_read, summary.points_out
+            "the input headers promise {} points; {} were read, {} written and {} in failed tiles",
+            summary.points_in, summary.points_read, summary.points_out, summary.points_failed
         )));
     }
     let json = serde_json::to_vec_pretty(&summary).map_err(|e| Error::Internal(e.to_string()))?;
@@ -170,6 +173,7 @@ fn execute(
         stage_dir: &stage_dir,
         spill_dir: &plan.spill_dir,
         stitch: plan.stitch.as_ref(),
+        keep_going: plan.keep_going,
     };
     let t_pipeline = Instant::now();
     let mut collector = Collector::new(

@@ -12,6 +12,7 @@
 use crate::budget::{BudgetPlan, StageMemory};
 use crate::config::Config;
 use crate::error::{Error, Result};
+use crate::io::input::{scan_inputs_skipping, SkippedInput};
 use crate::io::output::SegmentIdType;
 use crate::io::{scan_inputs, InputSet, TileWriter};
 use crate::model::stage_context_m;
@@ -24,6 +25,10 @@ use std::path::{Path, PathBuf};
 pub struct RunPlan {
     /// The scanned inputs and the run's record layout (the output point format).
     pub set: InputSet,
+    /// Inputs left out because they could not be read (`pipeline.keep_going`).
+    pub skipped_inputs: Vec<SkippedInput>,
+    /// Whether a failed tile is listed and skipped instead of stopping the run.
+    pub keep_going: bool,
     /// Worker threads.
     pub workers: usize,
     /// Tile size and buffer (0 when no stage reads context: buffers only cost).
@@ -75,7 +80,7 @@ impl RunPlan {
         inputs: &[PathBuf],
         work_base: &Path,
     ) -> Result<RunPlan> {
-        let set = scan_for_stages(cfg, stages, inputs)?;
+        let (set, skipped_inputs) = scan_for_stages(cfg, stages, inputs)?;
         let workers = if cfg.pipeline.threads == 0 {
             std::thread::available_parallelism()
                 .map(|n| n.get())
@@ -136,6 +141,8 @@ impl RunPlan {
             laz: cfg.output.format == "laz",
             spill_dir: work_base.join("spill"),
             set,
+            skipped_inputs,
+            keep_going: cfg.pipeline.keep_going,
         })
     }
 
@@ -163,16 +170,17 @@ impl RunPlan {
 
 /// Scans the inputs in the output point format: the configured one, else the inputs' own,
 /// upgraded to a LAS 1.4 format when a stage writes class codes legacy formats cannot hold.
+/// With `pipeline.keep_going`, unreadable inputs are left out and returned.
 fn scan_for_stages(
     cfg: &Config,
     stages: &[Box<dyn Stage>],
     inputs: &[PathBuf],
-) -> Result<InputSet> {
+) -> Result<(InputSet, Vec<SkippedInput>)> {
     let requested = cfg.output_point_format()?;
-    let set = scan_inputs(inputs, requested)?;
+    let (set, skipped) = scan_inputs_skipping(inputs, requested, cfg.pipeline.keep_going)?;
     let max_code = stages.iter().map(|s| s.max_class_code()).max().unwrap_or(0);
     if requested.is_some() || max_code <= 31 || set.layout.format.is_extended {
-        return Ok(set);
+        return Ok((set, skipped));
     }
     // Legacy formats hold class codes up to 31; write the LAS 1.4 format with the same
     // attributes (0, 1 → 6; 2, 3 → 7; 4 → 9; 5 → 10) rather than fail or truncate codes.
@@ -187,7 +195,9 @@ fn scan_for_stages(
         "stages write class codes up to {max_code}: output point format {} -> {up}",
         f.to_u8().unwrap_or(255)
     );
-    scan_inputs(inputs, Some(up))
+    // The second scan reads only the inputs the first one kept.
+    let kept: Vec<PathBuf> = set.files.iter().map(|f| f.path.clone()).collect();
+    Ok((scan_inputs(&kept, Some(up))?, skipped))
 }
 
 /// Stitching across the strip of the stage assigning segment ids.

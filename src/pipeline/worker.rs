@@ -6,10 +6,11 @@ use super::failure::Failure;
 use super::plan::StitchPlan;
 use super::writer::{Processed, TileMeta, TileOutput, ToWriter};
 use crate::budget::BudgetPlan;
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::io::output::{segment_table_tsv, TileSegments};
 use crate::io::TileWriter;
 use crate::model::{RecordLayout, Tile};
+use crate::report::FailedTile;
 use crate::stages::{Stage, TileReport};
 use crate::stitch::BorderSummary;
 use crate::tiling::{load_tile, split_job, SplitParams, TileBuffers, TileJob};
@@ -29,6 +30,8 @@ pub(super) struct WorkerRole<'a> {
     /// Spill files (split children, tiles deferred for stitching).
     pub spill_dir: &'a Path,
     pub stitch: Option<&'a StitchPlan>,
+    /// List a tile whose processing fails and go on (`pipeline.keep_going`).
+    pub keep_going: bool,
 }
 
 impl WorkerRole<'_> {
@@ -62,7 +65,14 @@ impl WorkerRole<'_> {
                 // The split's buffers take the place of a loaded tile: free the spare one.
                 *spare = TileBuffers::default();
                 let (name, n_core, n_buf, n_near) = (job.name, job.n_core, job.n_buf, job.n_near);
-                let (children, dropped) = split_job(job, self.layout, self.spill_dir, self.split)?;
+                let (children, dropped) =
+                    match split_job(job, self.layout, self.spill_dir, self.split) {
+                        Ok(r) => r,
+                        Err(e) => {
+                            self.skip_or_fail(res_tx, name.to_string(), n_core, e)?;
+                            continue;
+                        }
+                    };
                 tracing::debug!(
                     "tile {name}: {n_core} core + {n_buf} buffer points ({n_near} near) do not fit; split into {} children ({dropped} far buffer copies thinned)",
                     children.len(),
@@ -73,8 +83,15 @@ impl WorkerRole<'_> {
                 continue;
             }
             let tile = load_tile(job, self.layout, std::mem::take(spare))?;
+            let (name, n_core) = (tile.name.to_string(), tile.n_core as u64);
             let split_root = was_split.then(|| root.clone());
-            let p = self.process(tile, spare, split_root, std::mem::take(&mut thinned))?;
+            let p = match self.process(tile, spare, split_root, std::mem::take(&mut thinned)) {
+                Ok(p) => p,
+                Err(e) => {
+                    self.skip_or_fail(res_tx, name, n_core, e)?;
+                    continue;
+                }
+            };
             if let Err(e) = res_tx.send(ToWriter::Tile(Box::new(p))) {
                 e.into_inner().abandon();
                 return Ok(());
@@ -84,6 +101,30 @@ impl WorkerRole<'_> {
         if self.stitch.is_some() {
             let _ = res_tx.send(ToWriter::CellDone { cell, leaves });
         }
+        Ok(())
+    }
+
+    /// A tile (or a job's subtree) failed: with `keep_going`, a failure of this tile alone (a
+    /// stage's error, a tile too dense for the budget) is reported to the writer and the
+    /// worker goes on; anything else (I/O, configuration, cancellation) stops the run.
+    fn skip_or_fail(
+        &self,
+        res_tx: &Sender<ToWriter>,
+        tile: String,
+        points: u64,
+        e: Error,
+    ) -> Result<()> {
+        if !(self.keep_going && matches!(e, Error::Stage { .. } | Error::Budget(_))) {
+            return Err(e);
+        }
+        tracing::warn!("tile {tile}: {e}; its {points} core points are not written (keep going)");
+        let failed = FailedTile {
+            tile,
+            points,
+            error: e.to_string(),
+        };
+        // A closed channel means the run is stopping anyway.
+        let _ = res_tx.send(ToWriter::Failed(failed));
         Ok(())
     }
 

@@ -7,7 +7,7 @@ use crate::error::{Error, Result};
 use crate::io::output::DeferredTile;
 use crate::io::workspace::OutputDir;
 use crate::io::{PendingTile, TileWriter};
-use crate::report::{Summary, TileSummary};
+use crate::report::{FailedTile, Summary, TileSummary};
 use crate::stages::TileReport;
 use crate::stitch::{BorderSummary, CellKey, CellRelease, StitchParams, Stitcher};
 use crossbeam_channel::Receiver;
@@ -47,6 +47,8 @@ pub(super) enum ToWriter {
     CellDone { cell: CellKey, leaves: usize },
     /// The tiler released cells (sent before their jobs).
     Released(Vec<CellRelease>),
+    /// A tile failed and is left out (`pipeline.keep_going`).
+    Failed(FailedTile),
 }
 
 impl ToWriter {
@@ -123,6 +125,10 @@ impl<'a> Collector<'a> {
                     st.cell_done(cell, leaves)?;
                 }
                 self.stitch_s += t.elapsed().as_secs_f64();
+            }
+            ToWriter::Failed(f) => {
+                self.summary.points_failed += f.points;
+                self.summary.failed_tiles.push(f);
             }
             ToWriter::Tile(p) => {
                 let Processed { meta, output } = *p;

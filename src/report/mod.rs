@@ -72,4 +72,29 @@ pub struct Summary {
     /// MCAP inputs: decoding, georeferencing, skipped clouds and dropped points.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub mcap: Vec<crate::io::mcap::McapReport>,
+    /// Inputs left out because they could not be read (`pipeline.keep_going`; their points
+    /// are not in `points_in`).
+    pub skipped_inputs: Vec<crate::io::input::SkippedInput>,
+    /// Tiles whose processing failed (`pipeline.keep_going`): not written.
+    pub failed_tiles: Vec<FailedTile>,
+    /// Core points of the failed tiles (`points_out + points_failed == points_in`).
+    pub points_failed: u64,
+}
+
+/// A tile a `keep_going` run left out, and why.
+#[derive(Debug, Clone, Serialize)]
+pub struct FailedTile {
+    /// Tile name (a split tile's leaf, or the job whose split failed).
+    pub tile: String,
+    /// Its core points, not written.
+    pub points: u64,
+    /// What went wrong.
+    pub error: String,
+}
+
+impl Summary {
+    /// Whether the run left anything out (inputs or tiles, `pipeline.keep_going`).
+    pub fn is_incomplete(&self) -> bool {
+        !self.skipped_inputs.is_empty() || !self.failed_tiles.is_empty()
+    }
 }

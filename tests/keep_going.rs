@@ -1,0 +1,181 @@
+//! `--keep-going`: an unreadable input or a failed tile is listed in summary.json and the rest
+//! of the run finishes (exit code 3); without it the same run stops with exit 1 and leaves no
+//! tiles. Every point is accounted for: written, in a failed tile, or in a skipped input.
+
+mod common;
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn tessera() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_tessera"))
+}
+
+/// A sparse 1 point/m² ground grid over [0, 150) × [0, 100) m, plus (with `wall`) that many
+/// points stacked at (5, 5): a tile no split can make fit a small budget.
+fn write_scene(path: &Path, wall: usize) -> u64 {
+    let mut b = las::Builder::from((1, 2));
+    b.point_format = las::point::Format::new(0).unwrap();
+    let mut w = las::Writer::from_path(path, b.into_header().unwrap()).unwrap();
+    let mut n = 0u64;
+    for ix in 0..150 {
+        for iy in 0..100 {
+            w.write_point(las::Point {
+                x: ix as f64 + 0.5,
+                y: iy as f64 + 0.5,
+                z: 0.01 * ((ix * 7 + iy * 3) % 11) as f64,
+                ..Default::default()
+            })
+            .unwrap();
+            n += 1;
+        }
+    }
+    for i in 0..wall {
+        w.write_point(las::Point {
+            x: 5.0,
+            y: 5.0,
+            z: i as f64 * 0.001,
+            ..Default::default()
+        })
+        .unwrap();
+        n += 1;
+    }
+    w.close().unwrap();
+    n
+}
+
+fn run(inputs: &Path, out: &Path, extra: &[&str]) -> Output {
+    tessera()
+        .args(["-q", "run"])
+        .arg(inputs)
+        .arg("--out")
+        .arg(out)
+        .args(extra)
+        .output()
+        .unwrap()
+}
+
+fn summary(out: &Path) -> serde_json::Value {
+    serde_json::from_slice(&std::fs::read(out.join("summary.json")).unwrap()).unwrap()
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+#[test]
+fn unreadable_input_is_skipped_and_listed() {
+    let d = tempfile::tempdir().unwrap();
+    let inputs = d.path().join("in");
+    std::fs::create_dir(&inputs).unwrap();
+    let good = write_scene(&inputs.join("a.las"), 0);
+    // Not a LAS file at all, and a LAS file cut inside its point records.
+    std::fs::write(inputs.join("b.laz"), b"this is not a point cloud").unwrap();
+    let full = std::fs::read(inputs.join("a.las")).unwrap();
+    std::fs::write(inputs.join("c.las"), &full[..full.len() / 2]).unwrap();
+    let stats = ["--set", "stages.run=[\"stats\"]"];
+
+    // Without --keep-going the first bad input stops the run before any tile is written.
+    let out = d.path().join("strict");
+    let o = run(&inputs, &out, &stats);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(stderr(&o).contains("b.laz"), "{}", stderr(&o));
+    assert!(common::tiles_in(&out).is_empty());
+
+    let out = d.path().join("keep");
+    let mut args = stats.to_vec();
+    args.push("--keep-going");
+    let o = run(&inputs, &out, &args);
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(3), "{err}");
+    assert!(err.contains("2 unreadable input(s)"), "{err}");
+    let s = summary(&out);
+    let skipped: Vec<&str> = s["skipped_inputs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v["path"].as_str().unwrap())
+        .collect();
+    assert_eq!(skipped.len(), 2, "{s}");
+    assert!(
+        skipped[0].ends_with("b.laz") && skipped[1].ends_with("c.las"),
+        "{skipped:?}"
+    );
+    assert!(s["skipped_inputs"][1]["error"]
+        .as_str()
+        .unwrap()
+        .contains("c.las"));
+    assert_eq!(s["points_in"], good);
+    assert_eq!(s["points_out"], good);
+    assert_eq!(s["points_failed"], 0);
+    assert!(!common::tiles_in(&out).is_empty());
+}
+
+#[test]
+fn failed_tile_is_listed_and_the_rest_is_written() {
+    let d = tempfile::tempdir().unwrap();
+    let input = d.path().join("wall.las");
+    let wall = 300_000;
+    let total = write_scene(&input, wall);
+    // 64 MiB with stats, 256 MiB with ground + segment (and stitching): the 300 k-point wall
+    // at one xy exceeds a tile's share either way and no split can help; the other tiles fit.
+    for (name, budget, stages) in [
+        ("stats", "64", "stages.run=[\"stats\"]"),
+        ("segment", "256", "stages.run=[\"ground\", \"segment\"]"),
+    ] {
+        let base = ["--memory-budget", budget, "--set", stages];
+        let strict = d.path().join(format!("{name}-strict"));
+        let o = run(&input, &strict, &base);
+        assert_eq!(o.status.code(), Some(1), "{name}: {}", stderr(&o));
+        assert!(
+            stderr(&o).contains("memory budget infeasible"),
+            "{}",
+            stderr(&o)
+        );
+        assert!(common::tiles_in(&strict).is_empty());
+
+        let out = d.path().join(name);
+        let mut args = base.to_vec();
+        args.push("--keep-going");
+        let o = run(&input, &out, &args);
+        let err = stderr(&o);
+        assert_eq!(o.status.code(), Some(3), "{name}: {err}");
+        assert!(err.contains("failed tile(s)"), "{err}");
+        let s = summary(&out);
+        let failed = s["failed_tiles"].as_array().unwrap();
+        // With stats only the wall's tile fails. With segment, split leaves near the wall
+        // carry it as context (within segment.context_m) and fail too; each is listed.
+        if name == "stats" {
+            assert_eq!(failed.len(), 1, "{s}");
+        }
+        assert!(
+            !failed.is_empty() && s["tiles"].as_u64().unwrap() > 0,
+            "{s}"
+        );
+        for f in failed {
+            let e = f["error"].as_str().unwrap();
+            assert!(e.contains("memory budget infeasible"), "{f}");
+        }
+        // The wall and the grid points of the failed tiles' cores are the failed points;
+        // every other point is written exactly once.
+        let lost: u64 = failed.iter().map(|f| f["points"].as_u64().unwrap()).sum();
+        assert!(lost >= wall as u64, "{lost}");
+        assert_eq!(s["points_in"], total);
+        assert_eq!(s["points_failed"].as_u64().unwrap(), lost);
+        assert_eq!(s["points_out"].as_u64().unwrap() + lost, total);
+        let written: u64 = common::tiles_in(&out)
+            .iter()
+            .map(|t| {
+                las::Reader::from_path(t)
+                    .unwrap()
+                    .header()
+                    .number_of_points()
+            })
+            .sum();
+        assert_eq!(written + lost, total, "{name}");
+        assert_eq!(
+            common::tiles_in(&out).len(),
+            s["tiles"].as_u64().unwrap() as usize
+        );
+    }
+}
