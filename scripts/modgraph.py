@@ -71,12 +71,58 @@ def module_files():
 
 
 def strip_comments_and_strings(text):
-    text = re.sub(r"/\*.*?\*/", " ", text, flags=re.S)
-    text = re.sub(r"//[^\n]*", "", text)
-    text = re.sub(r'r#*"(?:.|\n)*?"#*', '""', text)
-    text = re.sub(r'"(?:\\.|[^"\\])*"', '""', text)
-    text = re.sub(r"'(?:\\.|[^'\\])'", "' '", text)
-    return text
+    """Code only: comments removed, string and char literal contents blanked (a small lexer:
+    line and nested block comments, "..." with escapes, r"..."/r#"..."# raw strings, b"..."
+    byte strings, char literals told apart from lifetimes). Newlines are kept."""
+    out = []
+    i, n = 0, len(text)
+
+    def ident_char(c):
+        return c.isalnum() or c == "_"
+
+    while i < n:
+        c = text[i]
+        if text.startswith("//", i):
+            j = text.find("\n", i)
+            i = n if j < 0 else j
+            continue
+        if text.startswith("/*", i):
+            depth, j = 1, i + 2
+            while j < n and depth:
+                if text.startswith("/*", j):
+                    depth, j = depth + 1, j + 2
+                elif text.startswith("*/", j):
+                    depth, j = depth - 1, j + 2
+                else:
+                    j += 1
+            out.append("\n" * text.count("\n", i, j))
+            i = j
+            continue
+        prev_ident = i > 0 and ident_char(text[i - 1])
+        m = None if prev_ident else re.match(r'b?r(#*)"', text[i:i + 300])
+        if m:
+            close = '"' + m.group(1)
+            j = text.find(close, i + m.end())
+            j = n if j < 0 else j + len(close)
+            out.append('""' + "\n" * text.count("\n", i, j))
+            i = j
+            continue
+        if c == '"' or (c == "b" and not prev_ident and text.startswith('b"', i)):
+            j = i + (2 if c == "b" else 1)
+            while j < n and text[j] != '"':
+                j += 2 if text[j] == "\\" else 1
+            out.append('""' + "\n" * text.count("\n", i, j))
+            i = j + 1
+            continue
+        if c == "'":
+            m = re.match(r"'(?:\\(?:x[0-9a-fA-F]{2}|u\{[0-9a-fA-F]+\}|.)|[^'\\\n])'", text[i:i + 16])
+            if m:
+                out.append("' '")
+                i += m.end()
+                continue
+        out.append(c)
+        i += 1
+    return "".join(out)
 
 
 def drop_test_code(text):
@@ -155,11 +201,16 @@ def split_use_tree(prefix, tree):
     return out
 
 
-def absolutise(path, mod):
-    """Turn a `super::`/`self::`/`crate::` path used in `mod` into a `crate::` path."""
+def absolutise(path, mod, modules=None):
+    """Turn a path used in `mod` into a `crate::` path: `crate::`, `self::`, `super::`, and
+    (2018 edition) a path starting with a child module of `mod`. None for external crates."""
     segs = path.split("::")
     if segs[0] == "crate":
         return path
+    if modules is not None and mod != "main":
+        child = mod + "::" + segs[0]
+        if child in modules:
+            return "::".join([mod] + segs)
     cur = mod.split("::") if mod != "main" else ["crate"]
     if segs[0] == "self":
         return "::".join(cur + segs[1:])
@@ -173,17 +224,24 @@ def absolutise(path, mod):
     return None
 
 
-def parse_module(mod, text):
+USE_RE = re.compile(r"(?<![\w:])(pub(?:\([^)]*\))?\s+)?\buse\s+([^;{}]+(?:\{[^;]*\})?[^;{}]*);")
+
+
+def parse_module(mod, text, modules):
     """(uses, reexports) of one module: the crate paths it names, and `pub use` name -> path."""
     uses, reexports = [], {}
-    for m in re.finditer(r"(pub(?:\([^)]*\))?\s+)?use\s+([^;]+);", text):
-        is_pub = bool(m.group(1)) and "(" not in (m.group(1) or "")
+    for m in USE_RE.finditer(text):
+        is_pub = bool(m.group(1))
         for p in split_use_tree("", m.group(2)):
-            full = absolutise(p, mod)
+            full = absolutise(p, mod, modules)
             if full is None:
                 continue
             if p.endswith("*"):
                 full = full[:-3] if full.endswith("::*") else full
+                uses.append(full)
+                if is_pub:
+                    reexports.setdefault("*", []).append(full)
+                continue
             uses.append(full)
             if is_pub:
                 name = full.split("::")[-1]
@@ -191,19 +249,23 @@ def parse_module(mod, text):
                 reexports[name] = full
                 if alias and len(split_use_tree("", m.group(2))) == 1:
                     reexports[alias.group(1)] = full
-    code = re.sub(r"(pub(?:\([^)]*\))?\s+)?use\s+[^;]+;", " ", text)
-    for m in re.finditer(r"\b((?:crate|super|self)(?:::\w+)+)", code):
+    code = USE_RE.sub(" ", text)
+    for m in re.finditer(r"(?<![\w:])((?:crate|super|self)(?:::\w+)+)", code):
         full = absolutise(m.group(1), mod)
         if full:
             uses.append(full)
-    if mod == "main":
-        for m in re.finditer(r"\btessera((?:::\w+)+)", code):
-            uses.append("crate" + m.group(1))
+    # The binary's modules (main.rs, commands/) name the library as `tessera::`.
+    for m in re.finditer(r"(?<![\w:])tessera((?:::\w+)+)", code):
+        uses.append("crate" + m.group(1))
     return uses, reexports
 
 
-def resolve(path, modules, reexports, depth=0):
-    """The module defining the item `path` names."""
+ITEM_RE = re.compile(r"\b(?:fn|struct|enum|trait|type|const|static|union)\s+(\w+)|\bmod\s+(\w+)\s*\{")
+
+
+def resolve(path, modules, reexports, defined, depth=0):
+    """The module defining the item `path` names: re-exports (`pub use a::X`, and globs
+    `pub use a::*` when `a` defines or re-exports the name) are followed to the definition."""
     segs = path.split("::")
     for n in range(len(segs), 0, -1):
         prefix = "::".join(segs[:n])
@@ -212,7 +274,13 @@ def resolve(path, modules, reexports, depth=0):
             if rest and depth < 8:
                 target = reexports.get(prefix, {}).get(rest[0])
                 if target and target != path:
-                    return resolve("::".join([target] + rest[1:]), modules, reexports, depth + 1)
+                    return resolve("::".join([target] + rest[1:]), modules, reexports, defined,
+                                   depth + 1)
+                if rest[0] not in defined.get(prefix, ()):
+                    for g in reexports.get(prefix, {}).get("*", []):
+                        if rest[0] in defined.get(g, ()) or rest[0] in reexports.get(g, {}):
+                            return resolve("::".join([g] + rest), modules, reexports, defined,
+                                           depth + 1)
             return prefix
     return None
 
@@ -311,17 +379,18 @@ def main():
     tests = test_files(files)
     files = {m: p for m, p in files.items()
              if not any(m == t or m.startswith(t + "::") for t in tests)}
-    texts, uses, reexports = {}, {}, {}
+    texts, uses, reexports, defined = {}, {}, {}, {}
     for mod, path in files.items():
         text = drop_test_code(strip_comments_and_strings(open(path, encoding="utf-8").read()))
         texts[mod] = text
-        uses[mod], reexports[mod] = parse_module(mod, text)
+        uses[mod], reexports[mod] = parse_module(mod, text, set(files))
+        defined[mod] = {a or b for a, b in ITEM_RE.findall(text)}
     modules = set(files)
     graph = {}
     for mod in modules:
         targets = set()
         for p in uses[mod]:
-            t = resolve(p, modules, reexports)
+            t = resolve(p, modules, reexports, defined)
             if t and t != mod and t != "crate":
                 targets.add(t)
         graph[mod] = targets

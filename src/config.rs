@@ -14,6 +14,13 @@ use std::path::Path;
 /// Largest configuration file read (the defaults are ~10 KB).
 const MAX_CONFIG_BYTES: u64 = 1 << 20;
 
+/// Keys renamed since earlier versions, `(old, new)`: configuration files and `--set` may
+/// still use the old name (a warning says so); both in one file is an error.
+const RENAMED: &[(&str, &str)] = &[
+    ("segment.buffer_m", "segment.context_m"),
+    ("label.buffer_m", "label.context_m"),
+];
+
 /// The compiled-in default configuration.
 pub const DEFAULT_TOML: &str = include_str!("../config/default.toml");
 
@@ -100,12 +107,13 @@ impl Config {
         if let Some(path) = user_file {
             // Bounded and regular files only: `--config /dev/zero` or a FIFO must fail, not hang.
             let text = crate::io::files::read_text_bounded(path, MAX_CONFIG_BYTES)?;
-            let user: toml::Value = toml::from_str(&text)
+            let mut user: toml::Value = toml::from_str(&text)
                 .map_err(|e| Error::Config(format!("{}: {e}", path.display())))?;
+            rename_keys(&mut user, &path.display().to_string())?;
             merge(&mut root, user);
         }
         for item in overrides {
-            apply_override(&mut root, item)?;
+            apply_override(&mut root, &renamed_override(item))?;
         }
         // Stage sections go to their stages; the rest must be the run's own sections.
         let mut sections = toml::Table::new();
@@ -218,6 +226,41 @@ impl Config {
             .unwrap_or_else(|| toml::Value::Table(toml::Table::new()));
         crate::stages::parse_section(name, &raw)
     }
+}
+
+/// Moves renamed keys of a user file to their new names.
+fn rename_keys(user: &mut toml::Value, source: &str) -> Result<()> {
+    for (old, new) in RENAMED {
+        let (Some((section, old_key)), Some((_, new_key))) =
+            (old.split_once('.'), new.split_once('.'))
+        else {
+            continue;
+        };
+        let Some(t) = user.get_mut(section).and_then(|v| v.as_table_mut()) else {
+            continue;
+        };
+        if let Some(v) = t.remove(old_key) {
+            if t.contains_key(new_key) {
+                return Err(Error::Config(format!(
+                    "{source}: both {old} and {new} are set; {old} is the old name of {new}"
+                )));
+            }
+            tracing::warn!("{source}: {old} is now called {new}");
+            t.insert(new_key.to_string(), v);
+        }
+    }
+    Ok(())
+}
+
+/// A `--set` item with a renamed key written with its new name.
+fn renamed_override(item: &str) -> String {
+    if let Some((key, value)) = item.split_once('=') {
+        if let Some((old, new)) = RENAMED.iter().find(|(old, _)| *old == key.trim()) {
+            tracing::warn!("--set {old}: {old} is now called {new}");
+            return format!("{new}={value}");
+        }
+    }
+    item.to_string()
 }
 
 fn merge(base: &mut toml::Value, over: toml::Value) {
@@ -333,6 +376,37 @@ mod tests {
         let _ = std::fs::remove_file(&file);
         assert!(e.contains("[segment]") && e.contains("nope"), "{e}");
         assert!(err(&["stages.run=[\"stats\"]", "bogus.x=1"]).contains("unknown"));
+        // A wrong type deep in a section names the key.
+        let e = err(&["label.ground.k=\"many\""]);
+        assert!(e.contains("[label]") && e.contains("k"), "{e}");
+    }
+
+    #[test]
+    fn renamed_keys_are_still_accepted() {
+        use crate::stages::segment::SegmentSection;
+        let c = Config::load(None, &["segment.buffer_m=3".into()]).unwrap();
+        let s: SegmentSection = c.stage_section("segment").unwrap();
+        assert_eq!(s.context_m, 3.0);
+        let dir = std::env::temp_dir().join(format!("tessera-ren-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("old.toml");
+        std::fs::write(
+            &file,
+            "[segment]\nbuffer_m = 2.5\n[label]\nbuffer_m = 1.5\n",
+        )
+        .unwrap();
+        let c = Config::load(Some(&file), &[]).unwrap();
+        let s: SegmentSection = c.stage_section("segment").unwrap();
+        assert_eq!(s.context_m, 2.5);
+        let l: crate::stages::label::LabelSection = c.stage_section("label").unwrap();
+        assert_eq!(l.context_m, 1.5);
+        std::fs::write(&file, "[segment]\nbuffer_m = 2.5\ncontext_m = 4\n").unwrap();
+        let e = Config::load(Some(&file), &[]).unwrap_err().to_string();
+        let _ = std::fs::remove_dir_all(&dir);
+        assert!(
+            e.contains("both segment.buffer_m and segment.context_m"),
+            "{e}"
+        );
         let ok = Config::load(None, &["stages.run=[\"ground\", \"label\"]".into()]);
         assert!(ok.is_ok());
     }

@@ -538,7 +538,7 @@ mod tests {
     /// whole cell or says it cannot (far-buffer thinning relies on this).
     #[test]
     fn representative_from_lowest_heights_agrees_with_whole_cell() {
-        let mut rng = crate::synth::scene::layout::Rng(0x9e37_79b9_7f4a_7c15);
+        let mut rng = crate::rng::Rng(0x9e37_79b9_7f4a_7c15);
         let mut next = move || rng.next();
         let (mut decided, mut undecided) = (0, 0);
         for _ in 0..3000 {

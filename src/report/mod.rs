@@ -32,11 +32,11 @@ pub struct TileSummary {
 pub struct Summary {
     /// tessera version.
     pub version: String,
-    /// Input files.
+    /// Input files read (skipped inputs not counted).
     pub inputs: usize,
     /// Points announced by the input headers (all read).
     pub points_in: u64,
-    /// Core points written (must equal `points_in`).
+    /// Core points written (equal to `points_in`, less `points_failed` in a keep-going run).
     pub points_out: u64,
     /// Points the reader read (checked equal to `points_in`, the headers' promise).
     #[serde(default)]
@@ -74,10 +74,13 @@ pub struct Summary {
     pub mcap: Vec<crate::io::mcap::McapReport>,
     /// Inputs left out because they could not be read (`pipeline.keep_going`; their points
     /// are not in `points_in`).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
     pub skipped_inputs: Vec<crate::io::input::SkippedInput>,
     /// Tiles whose processing failed (`pipeline.keep_going`): not written.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
     pub failed_tiles: Vec<FailedTile>,
     /// Core points of the failed tiles (`points_out + points_failed == points_in`).
+    #[serde(skip_serializing_if = "is_zero")]
     pub points_failed: u64,
 }
 
@@ -90,6 +93,10 @@ pub struct FailedTile {
     pub points: u64,
     /// What went wrong.
     pub error: String,
+}
+
+fn is_zero(n: &u64) -> bool {
+    *n == 0
 }
 
 impl Summary {

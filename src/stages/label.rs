@@ -34,7 +34,7 @@ pub struct LabelSection {
     #[serde(default = "default_min_sample")]
     pub min_sample_points: u64,
     /// Points farther than this outside the core are context only (capped by the tile buffer).
-    #[serde(default = "default_context", alias = "buffer_m")]
+    #[serde(default = "default_context")]
     pub context_m: f64,
     /// Ground subclass parameters.
     #[serde(default)]

@@ -1,4 +1,5 @@
-//! The registry: the one list of stages. Adding a stage is its module plus one line here
+//! The registry: the one list of stages. Adding a stage is its module (declared in
+//! `stages/mod.rs`) plus one line here
 //! (and its `[section]` in `config/default.toml` when it has one).
 
 use super::stage::{Stage, StageSpec};

@@ -35,7 +35,7 @@ pub struct SegmentSection {
     /// (20 m by default), far more context than region growing needs; segmenting all of it
     /// cost 8× the time on 12.5 m quadtree tiles. This strip is also the overlap in which
     /// neighbouring tiles' segments are compared when they are stitched.
-    #[serde(default = "default_seg_context", alias = "buffer_m")]
+    #[serde(default = "default_seg_context")]
     pub context_m: f64,
     /// Region-growing parameters.
     pub params: SegParams,

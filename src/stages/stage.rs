@@ -102,5 +102,5 @@ impl std::fmt::Debug for StageSpec {
 pub fn parse_section<T: DeserializeOwned>(stage: &str, raw: &toml::Value) -> Result<T> {
     raw.clone()
         .try_into()
-        .map_err(|e: toml::de::Error| Error::Config(format!("[{stage}]: {}", e.message())))
+        .map_err(|e: toml::de::Error| Error::Config(format!("[{stage}]: {}", e.to_string().trim())))
 }

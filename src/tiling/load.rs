@@ -114,7 +114,10 @@ pub fn split_job(
     } = params;
     let half = job.core.width() / 2.0;
     if half < min_tile_size_m {
-        return Err(too_dense(&job, &params));
+        let e = too_dense(&job, &params);
+        // The job ends here (a keep-going run goes on without it): its spill goes now.
+        remove_spill(&mut job);
+        return Err(e);
     }
     let quads: Vec<_> = (0u8..4)
         .map(|q| (job.id.child(q), job.core.quadrant(q)))
@@ -497,7 +500,7 @@ mod tests {
     /// whose lowest FAR_KEEP points leave it open (second pass).
     #[test]
     fn far_keeper_hands_over_each_cells_representative() {
-        let mut rng = crate::synth::scene::layout::Rng(0x2545_f491_4f6c_dd1d);
+        let mut rng = crate::rng::Rng(0x2545_f491_4f6c_dd1d);
         let mut next = move || rng.next();
         let rule = FarCells {
             cell_m: 0.5,
@@ -590,7 +593,7 @@ mod tests {
             x1: 40.0,
             y1: 40.0,
         };
-        let mut rng = crate::synth::scene::layout::Rng(0x9e37_79b9_7f4a_7c15);
+        let mut rng = crate::rng::Rng(0x9e37_79b9_7f4a_7c15);
         let mut next = move || rng.u();
         let mut set = SpillSet::new(dir.path(), 1 << 20);
         let slot = set.slot(id);

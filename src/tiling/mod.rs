@@ -1,6 +1,9 @@
 //! Tiling: bins streamed points into core tiles plus overlap buffers, spills incomplete tiles
 //! to disk, and releases a tile as soon as every input that could touch it has been read.
 
+mod job;
+pub use job::*;
+
 pub mod grid;
 pub mod load;
 pub mod spill;
@@ -11,45 +14,8 @@ pub use spill::{FinishedTile, Part, SpillPart, SpillSet, TileMap};
 
 use crate::error::Result;
 use crate::io::InputFile;
-use crate::model::{point_id, CellKey, RecordLayout, Rect, TileId, TileName};
+use crate::model::{point_id, RecordLayout, Rect, TileId, TileName};
 use std::path::Path;
-
-/// The tiler's release of one grid cell (what the stitcher needs to know which tiles can
-/// still share overlap points).
-#[derive(Debug, Clone, PartialEq)]
-pub struct CellRelease {
-    /// The cell.
-    pub cell: CellKey,
-    /// Whether it has core points (it becomes a worker job) or not (nothing will arrive).
-    pub has_core: bool,
-    /// Neighbouring cells (of the 8) still open in the tiler at release time.
-    pub open_neighbours: Vec<CellKey>,
-}
-
-/// A complete tile waiting for a worker: its points are in spill files and, for tiles released
-/// while their buffers still held points, partly in memory.
-#[derive(Debug)]
-pub struct TileJob {
-    /// Identity.
-    pub id: TileId,
-    /// Printable name.
-    pub name: TileName,
-    /// Core rectangle.
-    pub core: Rect,
-    /// Buffer width.
-    pub buffer_m: f64,
-    /// Core points.
-    pub core_part: SpillPart,
-    /// Buffer points.
-    pub buf_part: SpillPart,
-    /// Core points (in `core_part`).
-    pub n_core: u64,
-    /// Buffer points (in `buf_part`).
-    pub n_buf: u64,
-    /// Of those, the points within `near_m` of the core (the stages' widest bounded context):
-    /// what those stages hold (`BudgetPlan::fits`).
-    pub n_near: u64,
-}
 
 struct OpenTile {
     /// Inputs not fully read yet whose bounds reach this tile's core+buffer region.

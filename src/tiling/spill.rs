@@ -466,7 +466,7 @@ mod tests {
         let mut set = SpillSet::with_handoff(dir.path(), limit);
         let tiles: Vec<TileId> = (0..4).map(|i| TileId::grid(i, 0)).collect();
         let mut expect: Vec<[Points; 2]> = vec![Default::default(); 4];
-        let mut rng = crate::synth::scene::layout::Rng(7);
+        let mut rng = crate::rng::Rng(7);
         let mut held = Vec::new();
         let mut tails = 0;
         for i in 0..40_000u64 {
