@@ -108,6 +108,9 @@ impl Stage for Measured {
     fn max_class_code(&self) -> u8 {
         self.inner.max_class_code()
     }
+    fn writes(&self) -> &'static [tessera::stages::Attribute] {
+        self.inner.writes()
+    }
     fn process(
         &self,
         tile: &mut Tile,

@@ -16,7 +16,7 @@ use crate::io::input::{scan_inputs_skipping, SkippedInput};
 use crate::io::output::SegmentIdType;
 use crate::io::{scan_inputs, InputSet, TileWriter};
 use crate::model::stage_context_m;
-use crate::stages::Stage;
+use crate::stages::{Attribute, Stage};
 use crate::stitch::StitchParams;
 use crate::tiling::{FarThin, Grid, SplitParams};
 use std::path::{Path, PathBuf};
@@ -99,7 +99,9 @@ impl RunPlan {
                 context_m: s.context_m(),
             })
             .collect();
-        let segmenter = stages.iter().find(|s| s.assigns_segment_ids());
+        let segmenter = stages
+            .iter()
+            .find(|s| s.writes().contains(&Attribute::SegmentIds));
         let stitching = segmenter.is_some() && cfg.stitch.enabled;
         let mut budget = BudgetPlan::with_stages(
             cfg.pipeline.memory_budget_mb,

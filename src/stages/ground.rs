@@ -2,7 +2,7 @@
 //! writes ASPRS class 2 (ground), 7 (low noise, if enabled) and the configured class for the
 //! rest.
 
-use super::stage::{parse_section, Stage, StageSpec, TileReport};
+use super::stage::{parse_section, Attribute, Stage, StageSpec, TileReport};
 use crate::error::{Error, Result};
 use crate::ground::{classify_ground, GroundClass};
 use crate::model::{RecordLayout, Tile};
@@ -44,11 +44,15 @@ impl GroundSection {
 /// Registry entry.
 pub const SPEC: StageSpec = StageSpec {
     name: NAME,
-    requires: &[],
+    reads: &[],
+    writes: WRITES,
     has_section: true,
     validate: |raw| parse_section::<GroundSection>(NAME, raw)?.validate(),
     build: |raw| Ok(Box::new(GroundStage::new(parse_section(NAME, raw)?)?)),
 };
+
+/// What the stage writes.
+const WRITES: &[Attribute] = &[Attribute::GroundClasses];
 
 /// The stage's name and the name of its section.
 pub const NAME: &str = "ground";
@@ -70,6 +74,9 @@ impl GroundStage {
 impl Stage for GroundStage {
     fn name(&self) -> &'static str {
         NAME
+    }
+    fn writes(&self) -> &'static [Attribute] {
+        WRITES
     }
     fn bytes_per_point(&self) -> usize {
         self.section.params.bytes_per_point()

@@ -3,7 +3,7 @@
 //! classes from segment and object geometry. Runs after `ground` and (for facades and roofs)
 //! `segment`; writes the classification codes of the points of the core and a strip around it.
 
-use super::stage::{parse_section, Stage, StageSpec, TileReport};
+use super::stage::{parse_section, Attribute, Stage, StageSpec, TileReport};
 use crate::error::{Error, Result};
 use crate::label::kerbs::{classify_by_kerbs, KerbRule};
 use crate::label::objects::ObjectStats;
@@ -96,11 +96,16 @@ impl LabelSection {
 /// Registry entry: ground subclasses need the ground filter's classes.
 pub const SPEC: StageSpec = StageSpec {
     name: NAME,
-    requires: &["ground"],
+    // Segment ids are used when present (facades, roofs), not required.
+    reads: &[Attribute::GroundClasses],
+    writes: WRITES,
     has_section: true,
     validate: |raw| parse_section::<LabelSection>(NAME, raw)?.validate(),
     build: |raw| Ok(Box::new(LabelStage::new(parse_section(NAME, raw)?)?)),
 };
+
+/// What the stage writes.
+const WRITES: &[Attribute] = &[Attribute::Labels];
 
 /// The stage's name and the name of its section.
 pub const NAME: &str = "label";
@@ -131,6 +136,9 @@ impl LabelStage {
 impl Stage for LabelStage {
     fn name(&self) -> &'static str {
         NAME
+    }
+    fn writes(&self) -> &'static [Attribute] {
+        WRITES
     }
     fn max_class_code(&self) -> u8 {
         let samples = self

@@ -2,7 +2,7 @@
 //! `stages/mod.rs`) plus one line here
 //! (and its `[section]` in `config/default.toml` when it has one).
 
-use super::stage::{Stage, StageSpec};
+use super::stage::{Attribute, Stage, StageSpec};
 use crate::error::{Error, Result};
 
 /// Every stage tessera knows, in no particular order. Adding a stage: its module plus one
@@ -55,15 +55,29 @@ pub fn validate_stages(run: &[String], sections: &toml::Table) -> Result<()> {
         if run[..i].contains(name) {
             return Err(Error::Config(format!("stages.run names \"{name}\" twice")));
         }
-        for need in s.requires {
-            if !run[..i].iter().any(|r| r == need) {
+        for need in s.reads {
+            let written_before = run[..i]
+                .iter()
+                .any(|r| spec(r).is_ok_and(|w| w.writes.contains(need)));
+            if !written_before {
                 return Err(Error::Config(format!(
-                    "stages.run: \"{name}\" needs \"{need}\" to run before it"
+                    "stages.run: \"{name}\" needs {} to run before it (it reads {need})",
+                    writers(*need)
                 )));
             }
         }
     }
     Ok(())
+}
+
+/// The registered stages writing `a`, for messages: `"ground"` or `"a" or "b"`.
+fn writers(a: Attribute) -> String {
+    let names: Vec<String> = REGISTRY
+        .iter()
+        .filter(|s| s.writes.contains(&a))
+        .map(|s| format!("\"{}\"", s.name))
+        .collect();
+    names.join(" or ")
 }
 
 /// Builds the stages named in `run`, in order, each from its own section in `sections`.
@@ -90,10 +104,10 @@ mod tests {
                 "{} registered twice",
                 s.name
             );
-            for need in s.requires {
+            for need in s.reads {
                 assert!(
-                    REGISTRY.iter().any(|o| o.name == *need),
-                    "{} requires unregistered {need}",
+                    REGISTRY.iter().any(|o| o.writes.contains(need)),
+                    "{} reads {need}, which no registered stage writes",
                     s.name
                 );
             }
@@ -101,6 +115,7 @@ mod tests {
             // a stage with a section finds it in the defaults.
             let built = (s.build)(&section_of(s, &cfg.sections)).unwrap();
             assert_eq!(built.name(), s.name);
+            assert_eq!(built.writes(), s.writes, "{}", s.name);
             assert_eq!(
                 s.has_section,
                 cfg.sections.contains_key(s.name),

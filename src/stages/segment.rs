@@ -6,7 +6,7 @@
 //! Segment ids are local to a tile (1..=N in the tile's canonical order) until cross-tile
 //! stitching assigns global ids.
 
-use super::stage::{parse_section, Stage, StageSpec, TileReport};
+use super::stage::{parse_section, Attribute, Stage, StageSpec, TileReport};
 use crate::error::{Error, Result};
 use crate::model::{RecordLayout, SegmentRow, Tile};
 use crate::segment::{segment_at, SegParams};
@@ -70,11 +70,17 @@ impl SegmentSection {
 /// Registry entry.
 pub const SPEC: StageSpec = StageSpec {
     name: NAME,
-    requires: &[],
+    // The points it segments are chosen by their classes: the ground stage's when it runs
+    // first, else the input's own (a classified survey), so the classes are not required.
+    reads: &[],
+    writes: WRITES,
     has_section: true,
     validate: |raw| parse_section::<SegmentSection>(NAME, raw)?.validate(),
     build: |raw| Ok(Box::new(SegmentStage::new(parse_section(NAME, raw)?)?)),
 };
+
+/// What the stage writes.
+const WRITES: &[Attribute] = &[Attribute::SegmentIds];
 
 /// The stage's name and the name of its section.
 pub const NAME: &str = "segment";
@@ -91,8 +97,8 @@ impl Stage for SegmentStage {
     fn name(&self) -> &'static str {
         NAME
     }
-    fn assigns_segment_ids(&self) -> bool {
-        true
+    fn writes(&self) -> &'static [Attribute] {
+        WRITES
     }
     fn context_m(&self) -> Option<f64> {
         Some(self.section.context_m)

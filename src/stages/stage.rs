@@ -50,10 +50,10 @@ pub trait Stage: Send + Sync {
     fn far_cells(&self) -> Option<crate::tiling::FarCells> {
         None
     }
-    /// Whether the stage assigns per-point segment ids (written as the `segment_id`
-    /// attribute and stitched across tiles).
-    fn assigns_segment_ids(&self) -> bool {
-        false
+    /// The per-point attributes the stage writes (segment ids are written as the
+    /// `segment_id` attribute and stitched across tiles).
+    fn writes(&self) -> &'static [Attribute] {
+        &[]
     }
     /// Largest classification code the stage may write (codes above 31 need point formats
     /// 6–10; the pipeline then upgrades legacy inputs unless the user chose a format).
@@ -69,6 +69,30 @@ pub trait Stage: Send + Sync {
     ) -> Result<()>;
 }
 
+/// A per-point result a stage writes and later stages may need. Prerequisites between stages
+/// are stated in these terms ([`StageSpec::reads`]), so the order check does not know stage
+/// names.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Attribute {
+    /// Ground / non-ground / low-noise classes of the ground filter (ASPRS 2, 7).
+    GroundClasses,
+    /// Per-point segment ids and the segment table.
+    SegmentIds,
+    /// Object and ground-subclass labels (classification codes).
+    Labels,
+}
+
+impl std::fmt::Display for Attribute {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Attribute::GroundClasses => "ground classes",
+            Attribute::SegmentIds => "segment ids",
+            Attribute::Labels => "labels",
+        })
+    }
+}
+
 /// One entry of the stage registry ([`crate::stages::REGISTRY`], the only list of stages): how
 /// to check the stage's configuration section and how to build the stage from it. A stage's
 /// section, its checks, its memory model and what it writes all live in its own module.
@@ -76,8 +100,10 @@ pub trait Stage: Send + Sync {
 pub struct StageSpec {
     /// Name used in `stages.run`, in reports and as the name of its `[section]`.
     pub name: &'static str,
-    /// Stages that must run, earlier in `stages.run`, when this one runs.
-    pub requires: &'static [&'static str],
+    /// Attributes the stage needs: a stage writing each must run earlier in `stages.run`.
+    pub reads: &'static [Attribute],
+    /// Attributes the stage writes (the same list as its [`Stage::writes`]).
+    pub writes: &'static [Attribute],
     /// Whether the stage has a configuration section `[name]`.
     pub has_section: bool,
     /// Parses and checks the stage's section (an empty table when the configuration has
@@ -92,7 +118,8 @@ impl std::fmt::Debug for StageSpec {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("StageSpec")
             .field("name", &self.name)
-            .field("requires", &self.requires)
+            .field("reads", &self.reads)
+            .field("writes", &self.writes)
             .finish()
     }
 }

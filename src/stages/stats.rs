@@ -8,7 +8,8 @@ use std::collections::BTreeMap;
 /// Registry entry (no configuration section).
 pub const SPEC: StageSpec = StageSpec {
     name: "stats",
-    requires: &[],
+    reads: &[],
+    writes: &[],
     has_section: false,
     validate: |_| Ok(()),
     build: |_| Ok(Box::new(StatsStage)),
