@@ -179,3 +179,68 @@ fn failed_tile_is_listed_and_the_rest_is_written() {
         );
     }
 }
+
+/// A stage that panics on the tile holding (5, 5): a bug in a stage, or a dependency's panic
+/// on data it did not expect.
+struct PanicsOnOneTile;
+
+impl tessera::stages::Stage for PanicsOnOneTile {
+    fn name(&self) -> &'static str {
+        "panics"
+    }
+    fn bytes_per_point(&self) -> usize {
+        0
+    }
+    fn needs_context(&self) -> bool {
+        false
+    }
+    fn process(
+        &self,
+        tile: &mut tessera::model::Tile,
+        _layout: &tessera::model::RecordLayout,
+        _report: &mut tessera::stages::TileReport,
+    ) -> tessera::Result<()> {
+        if tile.core.contains(5.0, 5.0) {
+            panic!("index out of bounds in a dependency");
+        }
+        Ok(())
+    }
+}
+
+#[test]
+fn a_stage_panic_fails_its_tile_not_the_process() {
+    let d = tempfile::tempdir().unwrap();
+    let input = d.path().join("grid.las");
+    let total = write_scene(&input, 0);
+    let stages: Vec<Box<dyn tessera::stages::Stage>> = vec![Box::new(PanicsOnOneTile)];
+    let inputs = [input];
+
+    let cfg = tessera::Config::load(None, &[]).unwrap();
+    let e = tessera::pipeline::run_with_stages(
+        &inputs,
+        &d.path().join("strict"),
+        &cfg,
+        &stages,
+        &|_, _| {},
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("stage panics") && e.contains("panicked: index out of bounds"),
+        "{e}"
+    );
+    assert!(common::tiles_in(&d.path().join("strict")).is_empty());
+
+    let cfg = tessera::Config::load(None, &["pipeline.keep_going=true".into()]).unwrap();
+    let out = d.path().join("keep");
+    let s = tessera::pipeline::run_with_stages(&inputs, &out, &cfg, &stages, &|_, _| {}).unwrap();
+    assert_eq!(s.failed_tiles.len(), 1, "{:?}", s.failed_tiles);
+    assert!(s.failed_tiles[0].error.contains("panicked"));
+    assert_eq!(s.points_in, total);
+    assert_eq!(s.points_out + s.points_failed, total);
+    assert_eq!(
+        s.points_failed, 2500,
+        "the 50 m × 50 m tile at the origin holds 2,500 grid points"
+    );
+    assert!(s.is_incomplete());
+}

@@ -34,6 +34,33 @@ pub(super) struct WorkerRole<'a> {
     pub keep_going: bool,
 }
 
+/// Runs one stage on a tile. A panic inside the stage (a bug, or a dependency's on data it
+/// did not expect) becomes this tile's stage error instead of taking the process down: the
+/// run stops with a message naming the tile and stage, or with `--keep-going` lists the tile
+/// and goes on. The tile is dropped afterwards, so no half-updated state is used.
+fn run_stage(
+    st: &dyn Stage,
+    tile: &mut Tile,
+    layout: &RecordLayout,
+    report: &mut TileReport,
+) -> Result<()> {
+    let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        st.process(tile, layout, report)
+    }));
+    r.unwrap_or_else(|p| {
+        let what = p
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| p.downcast_ref::<String>().cloned())
+            .unwrap_or_else(|| "unknown panic".into());
+        Err(Error::Stage {
+            tile: tile.name.to_string(),
+            stage: st.name(),
+            source: format!("panicked: {what}").into(),
+        })
+    })
+}
+
 impl WorkerRole<'_> {
     /// Processes jobs until the channel closes or the run fails. The worker's tile buffers
     /// are reused from tile to tile.
@@ -140,7 +167,7 @@ impl WorkerRole<'_> {
         let mut report = TileReport::default();
         for st in self.stages {
             let t = Instant::now();
-            st.process(&mut tile, self.layout, &mut report)?;
+            run_stage(st.as_ref(), &mut tile, self.layout, &mut report)?;
             report
                 .seconds
                 .insert(st.name().to_string(), t.elapsed().as_secs_f64());
