@@ -77,9 +77,9 @@ pub struct StagesParams {
     pub run: Vec<String>,
 }
 
-/// The whole validated configuration.
-#[derive(Debug, Clone, Deserialize)]
-#[serde(deny_unknown_fields)]
+/// The whole validated configuration: only [`Config::load`] makes one (it parses the run's
+/// own sections and hands the stage sections to their stages).
+#[derive(Debug, Clone)]
 pub struct Config {
     /// `[tiling]`
     pub tiling: TilingParams,
@@ -95,8 +95,20 @@ pub struct Config {
     pub stitch: crate::stitch::StitchParams,
     /// The registered stages' sections as written (`[ground]`, `[segment]`, …), keyed by
     /// stage name; each is parsed and checked by its stage.
-    #[serde(skip)]
     pub sections: toml::Table,
+}
+
+/// The sections that are not a stage's: what remains of the configuration once the stage
+/// sections are taken out (any other key is unknown).
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RunSections {
+    tiling: TilingParams,
+    pipeline: PipelineParams,
+    output: OutputParams,
+    stages: StagesParams,
+    mcap: crate::io::mcap::McapParams,
+    stitch: crate::stitch::StitchParams,
 }
 
 impl Config {
@@ -129,10 +141,18 @@ impl Config {
                 }
             }
         }
-        let mut cfg: Config = root
+        let run: RunSections = root
             .try_into()
             .map_err(|e: toml::de::Error| Error::Config(e.to_string()))?;
-        cfg.sections = sections;
+        let cfg = Config {
+            tiling: run.tiling,
+            pipeline: run.pipeline,
+            output: run.output,
+            stages: run.stages,
+            mcap: run.mcap,
+            stitch: run.stitch,
+            sections,
+        };
         cfg.validate()?;
         Ok(cfg)
     }

@@ -221,6 +221,11 @@ fn execute(
         summary.seconds.insert("stitch".into(), stitch_s);
     }
     summary.buffer_m = plan.grid.buffer_m;
+    // Tiles by name, failed tiles by name, split roots by name: the summary of a run does not
+    // depend on which worker finished first.
+    summary.tile_list.sort_by(|a, b| a.name.cmp(&b.name));
+    summary.failed_tiles.sort_by(|a, b| a.tile.cmp(&b.tile));
+    summary.split_tiles.sort();
     summary.tiles = summary.tile_list.len();
     summary.tiles_split = summary.split_tiles.len();
     summary.max_open_tiles = max_open.load(Ordering::Relaxed) as usize;

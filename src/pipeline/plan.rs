@@ -211,6 +211,7 @@ fn stitch_plan(cfg: &Config, segmenter: &dyn Stage, set: &InputSet) -> StitchPla
         acc += f.points;
     }
     let context_m = segmenter.context_m().unwrap_or(cfg.tiling.buffer_m);
+    // The segmenter reads context, so the grid's buffer is `tiling.buffer_m`.
     let strip_m = stage_context_m(context_m, cfg.tiling.buffer_m);
     if strip_m <= 0.0 {
         tracing::warn!(

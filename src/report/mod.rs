@@ -67,7 +67,7 @@ pub struct Summary {
     /// Cross-tile stitching statistics (runs with the segment stage and stitching on).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub stitch: Option<crate::stitch::StitchStats>,
-    /// Written tiles, in write order.
+    /// Written tiles, by name.
     pub tile_list: Vec<TileSummary>,
     /// MCAP inputs: decoding, georeferencing, skipped clouds and dropped points.
     #[serde(skip_serializing_if = "Vec::is_empty")]
