@@ -159,6 +159,9 @@ fn failed_tile_is_listed_and_the_rest_is_written() {
         // The wall and the grid points of the failed tiles' cores are the failed points;
         // every other point is written exactly once.
         let lost: u64 = failed.iter().map(|f| f["points"].as_u64().unwrap()).sum();
+        // The wall's grid tile was split (down to the smallest size) before it failed: the
+        // split is booked like any other.
+        assert_eq!(s["split_tiles"].as_array().unwrap().len(), 1, "{name}: {s}");
         assert!(lost >= wall as u64, "{lost}");
         assert_eq!(s["points_in"], total);
         assert_eq!(s["points_failed"].as_u64().unwrap(), lost);

@@ -96,7 +96,8 @@ impl WorkerRole<'_> {
                     match split_job(job, self.layout, self.spill_dir, self.split) {
                         Ok(r) => r,
                         Err(e) => {
-                            self.skip_or_fail(res_tx, name.to_string(), n_core, e)?;
+                            let failed = (name.to_string(), n_core, Some(root.clone()));
+                            self.skip_or_fail(res_tx, failed, std::mem::take(&mut thinned), e)?;
                             continue;
                         }
                     };
@@ -112,10 +113,11 @@ impl WorkerRole<'_> {
             let tile = load_tile(job, self.layout, std::mem::take(spare))?;
             let (name, n_core) = (tile.name.to_string(), tile.n_core as u64);
             let split_root = was_split.then(|| root.clone());
-            let p = match self.process(tile, spare, split_root, std::mem::take(&mut thinned)) {
+            let dropped = std::mem::take(&mut thinned);
+            let p = match self.process(tile, spare, split_root.clone(), dropped) {
                 Ok(p) => p,
                 Err(e) => {
-                    self.skip_or_fail(res_tx, name, n_core, e)?;
+                    self.skip_or_fail(res_tx, (name, n_core, split_root), dropped, e)?;
                     continue;
                 }
             };
@@ -134,11 +136,13 @@ impl WorkerRole<'_> {
     /// A tile (or a job's subtree) failed: with `keep_going`, a failure of this tile alone (a
     /// stage's error, a tile too dense for the budget) is reported to the writer and the
     /// worker goes on; anything else (I/O, configuration, cancellation) stops the run.
+    /// `(tile, core points, split root)` name the failed tile; `buffer_thinned` counts the
+    /// far buffer copies its job's splits dropped (still booked).
     fn skip_or_fail(
         &self,
         res_tx: &Sender<ToWriter>,
-        tile: String,
-        points: u64,
+        (tile, points, split_root): (String, u64, Option<String>),
+        buffer_thinned: u64,
         e: Error,
     ) -> Result<()> {
         if !(self.keep_going && matches!(e, Error::Stage { .. } | Error::Budget(_))) {
@@ -151,7 +155,11 @@ impl WorkerRole<'_> {
             error: e.to_string(),
         };
         // A closed channel means the run is stopping anyway.
-        let _ = res_tx.send(ToWriter::Failed(failed));
+        let _ = res_tx.send(ToWriter::Failed {
+            failed,
+            split_root,
+            buffer_thinned,
+        });
         Ok(())
     }
 

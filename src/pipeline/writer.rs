@@ -47,8 +47,13 @@ pub(super) enum ToWriter {
     CellDone { cell: CellKey, leaves: usize },
     /// The tiler released cells (sent before their jobs).
     Released(Vec<CellRelease>),
-    /// A tile failed and is left out (`pipeline.keep_going`).
-    Failed(FailedTile),
+    /// A tile failed and is left out (`pipeline.keep_going`); the split it came from and the
+    /// buffer copies that split thinned are still booked.
+    Failed {
+        failed: FailedTile,
+        split_root: Option<String>,
+        buffer_thinned: u64,
+    },
 }
 
 impl ToWriter {
@@ -126,9 +131,20 @@ impl<'a> Collector<'a> {
                 }
                 self.stitch_s += t.elapsed().as_secs_f64();
             }
-            ToWriter::Failed(f) => {
-                self.summary.points_failed += f.points;
-                self.summary.failed_tiles.push(f);
+            ToWriter::Failed {
+                failed,
+                split_root,
+                buffer_thinned,
+            } => {
+                let s = &mut self.summary;
+                s.points_failed += failed.points;
+                s.failed_tiles.push(failed);
+                s.buffer_points_thinned += buffer_thinned;
+                if let Some(root) = split_root {
+                    if !s.split_tiles.contains(&root) {
+                        s.split_tiles.push(root);
+                    }
+                }
             }
             ToWriter::Tile(p) => {
                 let Processed { meta, output } = *p;
