@@ -32,7 +32,7 @@ LAYERS = [
     ("stages", ["crate::budget", "crate::stages"]),
     ("config", ["crate::config"]),
     ("report", ["crate::report"]),
-    ("run", ["crate::pipeline"]),
+    ("run", ["crate::pipeline", "crate::region"]),
     ("front", ["crate::cli", "crate"]),
 ]
 

@@ -80,6 +80,26 @@ pub enum Command {
         #[command(flatten)]
         opts: RunOpts,
     },
+    /// Plan a region for a cluster: from the LAS/LAZ headers only, the grid tiles with their
+    /// estimated points, cut into tasks of spatially compact blocks balanced by points
+    /// (writes DIR/plan.json and DIR/tiles.tsv).
+    Plan {
+        /// Input files or directories (LAS/LAZ).
+        #[arg(required = true)]
+        inputs: Vec<PathBuf>,
+        /// Directory the plan is written into.
+        #[arg(long)]
+        out: PathBuf,
+        /// Number of tasks.
+        #[arg(long, default_value_t = 1)]
+        tasks: usize,
+        /// Configuration file (TOML) overlaid on config/default.toml (the grid: tiling.*).
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Override one setting, e.g. --set tiling.tile_size_m=25 (repeatable).
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
+    },
     /// Generate a deterministic synthetic street scene with ground truth.
     Synth(SynthArgs),
     /// Density reduction by minimum point spacing (Sapkota §5.3), streaming: a point is kept

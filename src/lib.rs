@@ -15,6 +15,7 @@ pub mod io;
 pub mod label;
 pub mod model;
 pub mod pipeline;
+pub mod region;
 pub mod report;
 pub mod rng;
 pub mod segment;

@@ -4,6 +4,7 @@
 mod demo;
 mod eval;
 mod info;
+mod plan;
 mod progress;
 mod run;
 mod samples;
@@ -17,6 +18,13 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<()> {
     let quiet = cli.quiet;
     match cli.command {
         Command::Run { inputs, out, opts } => run::run(&inputs, &out, &opts, quiet),
+        Command::Plan {
+            inputs,
+            out,
+            tasks,
+            config,
+            set,
+        } => plan::plan(&inputs, &out, tasks, config.as_deref(), &set, quiet),
         Command::Synth(args) => synth::synth(args),
         Command::Demo {
             out,

@@ -1,0 +1,41 @@
+//! `tessera plan`: a region plan from the input headers (see [`tessera::region`]).
+
+use std::path::{Path, PathBuf};
+use tessera::tiling::Grid;
+use tessera::Config;
+
+/// Plans `inputs` into `tasks` tasks and writes the plan into `out`.
+pub fn plan(
+    inputs: &[PathBuf],
+    out: &Path,
+    tasks: usize,
+    config: Option<&Path>,
+    set: &[String],
+    quiet: bool,
+) -> anyhow::Result<()> {
+    let cfg = Config::load(config, set)?;
+    let grid = Grid {
+        tile_size_m: cfg.tiling.tile_size_m,
+        buffer_m: cfg.tiling.buffer_m,
+    };
+    let plan = tessera::region::plan_region(inputs, grid, tasks)?;
+    plan.write(out)?;
+    if !quiet {
+        println!(
+            "{} inputs, {} points, {} tiles in {} tasks ({} m tiles); {}",
+            plan.inputs.len(),
+            plan.points,
+            plan.tiles.len(),
+            plan.tasks.len(),
+            plan.tile_size_m,
+            out.join("plan.json").display()
+        );
+        for t in &plan.tasks {
+            println!(
+                "  task {:>4}: {:>6} tiles, {:>12} points",
+                t.index, t.tiles, t.points
+            );
+        }
+    }
+    Ok(())
+}
