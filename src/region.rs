@@ -3,7 +3,8 @@
 //! balanced by points — what a cluster job array distributes.
 //!
 //! Estimate: each input's points are spread uniformly over its header bounds, so a tile gets
-//! the share of every input whose bounds overlap its core (by area). Tasks: tiles in Morton
+//! the share of every input whose bounds overlap its core (by area), at least 1: every tile an
+//! input reaches is planned. Tasks: tiles in Morton
 //! order (a space-filling curve: consecutive tiles are neighbours, so a task is a compact
 //! block, and its inputs and buffers are mostly its own), cut where the running sum of
 //! estimated points crosses each multiple of `total / tasks`.
@@ -58,7 +59,7 @@ pub struct RegionPlan {
     pub points: u64,
     /// Tasks, by index.
     pub tasks: Vec<PlannedTask>,
-    /// Tiles with an estimated point (Morton order).
+    /// Every tile an input's bounds overlap (Morton order).
     #[serde(skip)]
     pub tiles: Vec<PlannedTile>,
 }
@@ -84,13 +85,14 @@ pub fn plan_region(inputs: &[PathBuf], grid: Grid, tasks: usize) -> Result<Regio
     }
     let mut tiles: Vec<PlannedTile> = cells
         .into_iter()
+        // Every tile some input's bounds overlap is listed, at least 1 point: it may hold
+        // points, and a tile missing from the plan would never be processed.
         .map(|((ix, iy), est)| PlannedTile {
             ix,
             iy,
-            points: est.round() as u64,
+            points: (est.round() as u64).max(1),
             task: 0,
         })
-        .filter(|t| t.points > 0)
         .collect();
     tiles.sort_by_key(|t| (morton(t.ix, t.iy), t.ix, t.iy));
     let planned: u64 = tiles.iter().map(|t| t.points).sum();

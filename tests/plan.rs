@@ -118,3 +118,42 @@ fn plan_covers_every_tile_once_in_balanced_morton_contiguous_tasks() {
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("never replaced"));
 }
+
+/// A sparse file (2 points whose bounds reach 4 tiles) still plans all 4 tiles: a tile left
+/// out of a plan would never be processed.
+#[test]
+fn every_tile_an_input_reaches_is_planned() {
+    let d = tempfile::tempdir().unwrap();
+    let inputs = d.path().join("in");
+    std::fs::create_dir_all(&inputs).unwrap();
+    let mut b = las::Builder::from((1, 2));
+    b.point_format = las::point::Format::new(0).unwrap();
+    let mut w =
+        las::Writer::from_path(inputs.join("sparse.las"), b.into_header().unwrap()).unwrap();
+    for (x, y) in [(10.0, 10.0), (90.0, 90.0)] {
+        w.write_point(las::Point {
+            x,
+            y,
+            z: 0.0,
+            ..Default::default()
+        })
+        .unwrap();
+    }
+    w.close().unwrap();
+    let out = d.path().join("plan");
+    assert!(plan(&inputs, &out, 2).status.success());
+    let tsv = std::fs::read_to_string(out.join("tiles.tsv")).unwrap();
+    let mut cells: Vec<String> = tsv
+        .lines()
+        .skip(1)
+        .map(|l| l.split('\t').take(2).collect::<Vec<_>>().join(","))
+        .collect();
+    cells.sort();
+    assert_eq!(cells, ["0,0", "0,1", "1,0", "1,1"]);
+    assert!(
+        tsv.lines()
+            .skip(1)
+            .all(|l| l.split('\t').nth(2) == Some("1")),
+        "{tsv}"
+    );
+}
