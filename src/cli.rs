@@ -20,15 +20,23 @@ pub struct Cli {
     pub command: Command,
 }
 
-/// Options shared by the processing commands.
+/// The configuration options every command that reads `config/default.toml` takes.
 #[derive(Debug, Args, Clone)]
-pub struct RunOpts {
+pub struct ConfigOpts {
     /// Configuration file (TOML) overlaid on config/default.toml.
     #[arg(long)]
     pub config: Option<PathBuf>,
     /// Override one setting, e.g. --set tiling.tile_size_m=25 (repeatable).
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub set: Vec<String>,
+}
+
+/// Options shared by the processing commands.
+#[derive(Debug, Args, Clone)]
+pub struct RunOpts {
+    /// Configuration file and `--set` overrides.
+    #[command(flatten)]
+    pub cfg: ConfigOpts,
     /// Memory budget in MiB (pipeline.memory_budget_mb).
     #[arg(long)]
     pub memory_budget: Option<u64>,
@@ -48,7 +56,7 @@ pub struct RunOpts {
 impl RunOpts {
     /// All overrides, the dedicated flags last so they win.
     pub fn overrides(&self) -> Vec<String> {
-        let mut v = self.set.clone();
+        let mut v = self.cfg.set.clone();
         if let Some(m) = self.memory_budget {
             v.push(format!("pipeline.memory_budget_mb={m}"));
         }
@@ -93,12 +101,9 @@ pub enum Command {
         /// Number of tasks.
         #[arg(long, default_value_t = 1)]
         tasks: usize,
-        /// Configuration file (TOML) overlaid on config/default.toml (the grid: tiling.*).
-        #[arg(long)]
-        config: Option<PathBuf>,
-        /// Override one setting, e.g. --set tiling.tile_size_m=25 (repeatable).
-        #[arg(long = "set", value_name = "KEY=VALUE")]
-        set: Vec<String>,
+        /// Configuration (the grid: `tiling.*`).
+        #[command(flatten)]
+        cfg: ConfigOpts,
     },
     /// Generate a deterministic synthetic street scene with ground truth.
     Synth(SynthArgs),

@@ -36,7 +36,7 @@ pub fn demo(out: &Path, length_m: f64, opts: &RunOpts, quiet: bool) -> anyhow::R
     // The demo's own tiles directory: an earlier demo's tiles are replaced (only the files
     // its journal lists).
     overrides.push("output.overwrite=true".into());
-    let cfg = Config::load(opts.config.as_deref(), &overrides)?;
+    let cfg = Config::load(opts.cfg.config.as_deref(), &overrides)?;
     let tiles = out.join("tiles");
     super::run::process(std::slice::from_ref(&scene_dir), &tiles, &cfg, quiet)?;
     if cfg.stages.run.iter().any(|s| s == "label") {

@@ -22,9 +22,8 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<()> {
             inputs,
             out,
             tasks,
-            config,
-            set,
-        } => plan::plan(&inputs, &out, tasks, config.as_deref(), &set, quiet),
+            cfg,
+        } => plan::plan(&inputs, &out, tasks, &cfg, quiet),
         Command::Synth(args) => synth::synth(args),
         Command::Demo {
             out,

@@ -1,6 +1,7 @@
 //! `tessera plan`: a region plan from the input headers (see [`tessera::region`]).
 
 use std::path::{Path, PathBuf};
+use tessera::cli::ConfigOpts;
 use tessera::tiling::Grid;
 use tessera::Config;
 
@@ -9,11 +10,10 @@ pub fn plan(
     inputs: &[PathBuf],
     out: &Path,
     tasks: usize,
-    config: Option<&Path>,
-    set: &[String],
+    opts: &ConfigOpts,
     quiet: bool,
 ) -> anyhow::Result<()> {
-    let cfg = Config::load(config, set)?;
+    let cfg = Config::load(opts.config.as_deref(), &opts.set)?;
     let grid = Grid {
         tile_size_m: cfg.tiling.tile_size_m,
         buffer_m: cfg.tiling.buffer_m,

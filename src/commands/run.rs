@@ -7,7 +7,7 @@ use tessera::Config;
 
 /// Loads the configuration (validated whole before any input is read) and runs.
 pub fn run(inputs: &[PathBuf], out: &Path, opts: &RunOpts, quiet: bool) -> anyhow::Result<()> {
-    let cfg = Config::load(opts.config.as_deref(), &opts.overrides())?;
+    let cfg = Config::load(opts.cfg.config.as_deref(), &opts.overrides())?;
     process(inputs, out, &cfg, quiet)
 }
 

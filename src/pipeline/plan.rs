@@ -29,8 +29,6 @@ pub struct RunPlan {
     pub skipped_inputs: Vec<SkippedInput>,
     /// Whether a failed tile is listed and skipped instead of stopping the run.
     pub keep_going: bool,
-    /// Worker threads.
-    pub workers: usize,
     /// Tile size and buffer (0 when no stage reads context: buffers only cost).
     pub grid: Grid,
     /// The memory plan (chunk sizes, spill bounds, tile limits).
@@ -130,7 +128,6 @@ impl RunPlan {
             SegmentIdType::U32
         };
         Ok(RunPlan {
-            workers,
             grid: Grid {
                 tile_size_m: cfg.tiling.tile_size_m,
                 buffer_m,
