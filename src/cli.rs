@@ -47,6 +47,10 @@ pub struct RunOpts {
     /// the files that run recorded are removed first; other files are never touched.
     #[arg(long)]
     pub overwrite: bool,
+    /// Start over instead of resuming the interrupted run in the output directory
+    /// (output.restart): that run's files are removed first, as with --overwrite.
+    #[arg(long)]
+    pub restart: bool,
     /// Skip unreadable inputs and failed tiles, list them in summary.json and finish the
     /// rest; exit code 3 when anything was skipped (pipeline.keep_going).
     #[arg(long)]
@@ -65,6 +69,9 @@ impl RunOpts {
         }
         if self.overwrite {
             v.push("output.overwrite=true".into());
+        }
+        if self.restart {
+            v.push("output.restart=true".into());
         }
         if self.keep_going {
             v.push("pipeline.keep_going=true".into());

@@ -67,6 +67,8 @@ pub struct OutputParams {
     /// Replace an earlier run's outputs in the output directory (only the files its journal
     /// lists); without it such a directory is refused.
     pub overwrite: bool,
+    /// Start over instead of resuming an interrupted run in the output directory.
+    pub restart: bool,
 }
 
 /// Stage selection.
@@ -96,6 +98,28 @@ pub struct Config {
     /// The registered stages' sections as written (`[ground]`, `[segment]`, …), keyed by
     /// stage name; each is parsed and checked by its stage.
     pub sections: toml::Table,
+    /// Every setting as `section.key = value` (defaults, file and `--set` merged), in key
+    /// order: what a resumed run compares with the run it continues.
+    pub effective: std::collections::BTreeMap<String, String>,
+}
+
+/// Flattens a TOML document into `a.b.c = value` pairs (arrays and scalars as TOML text).
+fn flatten(prefix: &str, v: &toml::Value, out: &mut std::collections::BTreeMap<String, String>) {
+    match v {
+        toml::Value::Table(t) => {
+            for (k, v) in t {
+                let key = if prefix.is_empty() {
+                    k.clone()
+                } else {
+                    format!("{prefix}.{k}")
+                };
+                flatten(&key, v, out);
+            }
+        }
+        other => {
+            out.insert(prefix.to_string(), other.to_string());
+        }
+    }
 }
 
 /// The sections that are not a stage's: what remains of the configuration once the stage
@@ -127,6 +151,8 @@ impl Config {
         for item in overrides {
             apply_override(&mut root, &renamed_override(item))?;
         }
+        let mut effective = std::collections::BTreeMap::new();
+        flatten("", &root, &mut effective);
         // Stage sections go to their stages; the rest must be the run's own sections.
         let mut sections = toml::Table::new();
         if let toml::Value::Table(t) = &mut root {
@@ -152,6 +178,7 @@ impl Config {
             mcap: run.mcap,
             stitch: run.stitch,
             sections,
+            effective,
         };
         cfg.validate()?;
         Ok(cfg)

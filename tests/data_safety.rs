@@ -734,26 +734,31 @@ fn mutated_extra_bytes_are_refused() {
     }
 }
 
-/// A full disk while tiles are written: exit 1, no temporary file, no spill or work
-/// directory, no partial tile set. Needs a small tmpfs (root and mount permission).
+/// A full disk while tiles are written: exit 1 naming it, no temporary file, no spill or
+/// work directory, no half-written tile — every tile left is whole (byte-identical to a run
+/// that had room) and recorded in the resume journal. Given room (the tmpfs grown), the same
+/// command resumes and ends with exactly the tiles of that run (issue 20: a full disk is an
+/// interruption like any other). Needs a small tmpfs (root and mount permission).
 #[test]
-fn full_disk_fails_cleanly() {
+fn full_disk_fails_cleanly_and_resumes() {
     let d = tempfile::tempdir().unwrap();
     let mnt = d.path().join("small");
     std::fs::create_dir(&mnt).unwrap();
-    let mounted = Command::new("mount")
-        .args([
-            "-t",
-            "tmpfs",
-            "-o",
-            "size=3m",
-            "tessera-test",
-            mnt.to_str().unwrap(),
-        ])
-        .status()
-        .map(|s| s.success())
-        .unwrap_or(false);
-    if !mounted {
+    let mount = |opts: &str| {
+        Command::new("mount")
+            .args([
+                "-t",
+                "tmpfs",
+                "-o",
+                opts,
+                "tessera-test",
+                mnt.to_str().unwrap(),
+            ])
+            .status()
+            .map(|s| s.success())
+            .unwrap_or(false)
+    };
+    if !mount("size=3m") {
         // CI runs as root on its own machine: there the gate must run.
         assert_ne!(
             std::env::var("CI").as_deref(),
@@ -783,25 +788,82 @@ fn full_disk_fails_cleanly() {
             spill.display().to_string()
         )),
     ] {
-        let out = mnt.join("out");
         let mut sets = vec!["output.format=\"las\""];
         sets.extend(spill_set.as_deref());
+        let reference = d.path().join("reference");
+        let _ = std::fs::remove_dir_all(&reference);
+        let o = run(&tiled(10, false, &sets), &[&reference, &f]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let out = mnt.join("out");
         let o = run(&tiled(10, false, &sets), &[&out, &f]);
         let err = stderr(&o);
         assert_eq!(o.status.code(), Some(1), "{spill_set:?}: {err}");
         assert!(err.to_lowercase().contains("no space"), "{err}");
-        let left = snapshot(&mnt);
-        assert!(
-            left.is_empty(),
-            "left on the full disk: {:?}",
-            left.iter().map(|x| &x.0).collect::<Vec<_>>()
-        );
-        assert!(std::fs::read_dir(&mnt).unwrap().next().is_none());
+        // What is left: whole tiles only, no temporary file, no work directory.
+        for (p, bytes) in snapshot(&mnt) {
+            let name = p.file_name().unwrap().to_string_lossy().into_owned();
+            assert!(
+                !name.ends_with(".tmp"),
+                "temporary file left: {}",
+                p.display()
+            );
+            let whole = std::fs::read(reference.join(&name)).ok();
+            assert!(
+                whole.as_ref() == Some(&bytes),
+                "{} is not a whole tile",
+                p.display()
+            );
+        }
+        if out.exists() {
+            let work: Vec<_> = std::fs::read_dir(&out)
+                .unwrap()
+                .flatten()
+                .filter(|e| e.file_name().to_string_lossy().starts_with(".tessera-work"))
+                .collect();
+            assert!(work.is_empty(), "work directory left");
+        }
         assert!(
             std::fs::read_dir(&spill).unwrap().next().is_none(),
             "spill left"
         );
+        // Room again: the same command finishes the run.
+        assert!(mount_remount(&mnt, "size=64m"), "cannot grow the tmpfs");
+        let o = run(&tiled(10, false, &sets), &[&out, &f]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let s = summary(&out);
+        eprintln!(
+            "{spill_set:?}: resumed after the full disk, {} tiles reused",
+            s["tiles_reused"]
+        );
+        assert_eq!(s["points_out"], 400_000);
+        assert_eq!(
+            s["tiles_reused"].as_u64().unwrap() + s["tiles_recomputed"].as_u64().unwrap(),
+            s["tiles"].as_u64().unwrap()
+        );
+        let tiles = |dir: &Path| -> Vec<(String, Vec<u8>)> {
+            common::tiles_in(dir)
+                .iter()
+                .map(|p| {
+                    (
+                        p.file_name().unwrap().to_string_lossy().into_owned(),
+                        std::fs::read(p).unwrap(),
+                    )
+                })
+                .collect()
+        };
+        assert!(tiles(&out) == tiles(&reference), "resumed tiles differ");
+        assert!(!out.join(".tessera-resume").exists());
+        std::fs::remove_dir_all(&out).unwrap();
+        assert!(mount_remount(&mnt, "size=3m"));
     }
+}
+
+fn mount_remount(mnt: &Path, opts: &str) -> bool {
+    Command::new("mount")
+        .args(["-o", &format!("remount,{opts}"), mnt.to_str().unwrap()])
+        .status()
+        .map(|s| s.success())
+        .unwrap_or(false)
 }
 
 /// A run killed (SIGKILL) while it replaces an earlier run's outputs: the directory never has

@@ -328,17 +328,14 @@ impl TileWriter {
     /// its uncompressed records once, in blocks, and deletes the deferred files. The segment
     /// table gets the global id first and the local id in a `local_id` column.
     pub fn finish_deferred(&self, dir: &Path, d: DeferredTile, ids: &[u64]) -> Result<PendingTile> {
-        let res = self.finish_deferred_inner(dir, &d, ids);
+        let res = self.write_deferred(dir, &d, ids);
         d.abandon();
         res
     }
 
-    fn finish_deferred_inner(
-        &self,
-        dir: &Path,
-        d: &DeferredTile,
-        ids: &[u64],
-    ) -> Result<PendingTile> {
+    /// Like [`TileWriter::finish_deferred`], but the deferred files stay (a resumable run
+    /// deletes them only once its journal records the written tile).
+    pub fn write_deferred(&self, dir: &Path, d: &DeferredTile, ids: &[u64]) -> Result<PendingTile> {
         use std::io::Read;
         let off = self.id_offset().ok_or_else(|| {
             Error::Internal("deferred tile without a segment id attribute".into())
@@ -463,6 +460,28 @@ pub struct DeferredTile {
 }
 
 impl DeferredTile {
+    /// A deferred tile whose files another run (or task) wrote and a journal recorded:
+    /// `raw` records with local ids, `table` the segment table, `points` core points.
+    pub fn from_parts(name: String, raw: PathBuf, table: PathBuf, points: usize) -> Self {
+        DeferredTile {
+            name,
+            raw,
+            table,
+            points,
+        }
+    }
+
+    /// The records file and the segment table file.
+    pub fn files(&self) -> (&Path, &Path) {
+        (&self.raw, &self.table)
+    }
+
+    /// Flushes both files to the disk (before a journal names them).
+    pub fn sync(&self) -> Result<()> {
+        sync_file(&self.raw)?;
+        sync_file(&self.table)
+    }
+
     /// Deletes the deferred files.
     pub fn abandon(&self) {
         let _ = std::fs::remove_file(&self.raw);
@@ -478,7 +497,24 @@ pub struct PendingTile {
     files: Vec<(PathBuf, String)>,
 }
 
+/// Flushes a written file's data to the disk.
+pub fn sync_file(path: &Path) -> Result<()> {
+    File::open(path)
+        .and_then(|f| f.sync_all())
+        .map_err(|e| Error::io(path, e))
+}
+
 impl PendingTile {
+    /// Flushes the staged files to the disk (a journal will name them as committed).
+    pub fn sync(&self) -> Result<()> {
+        self.files.iter().try_for_each(|(p, _)| sync_file(p))
+    }
+
+    /// The names the tile's files get in the output directory, the point file first.
+    pub fn names(&self) -> Vec<String> {
+        self.files.iter().map(|(_, n)| n.clone()).collect()
+    }
+
     /// Moves the tile's files into the output directory (the point file last: a visible tile
     /// always has its table) and returns the point file's path.
     pub fn commit(self, out: &mut OutputDir) -> Result<PathBuf> {

@@ -25,6 +25,10 @@ pub const WORK_MARKER: &str = "TESSERA-WORK-DIR";
 pub const LOCK_FILE: &str = ".tessera.lock";
 /// Journal of an output directory: the files the last run there wrote.
 pub const JOURNAL: &str = ".tessera-journal";
+/// The resume directory of an output directory: the journal of finished cells an
+/// interrupted run is continued from (written by `pipeline::journal`; owned, kept and removed
+/// by [`OutputDir`]).
+pub const RESUME_DIR: &str = ".tessera-resume";
 /// The run summary's file name.
 pub const SUMMARY: &str = "summary.json";
 
@@ -186,6 +190,12 @@ pub struct OutputDir {
     /// Files this run committed, in order.
     committed: Vec<String>,
     finished: bool,
+    /// A failed run keeps what it committed and its resume directory (it can be resumed):
+    /// set once the resume journal names finished work.
+    resumable: bool,
+    /// This run started the resume directory (a failed run that is not resumable removes
+    /// it; an interrupted earlier run's is never removed by a run that is refused).
+    resume_created: bool,
     /// The run created the directory (a failed run then removes it if nothing else is there).
     created: bool,
     /// The locked lock file: held until the run ends. Declared last so that it is released
@@ -328,7 +338,10 @@ impl OutputDir {
         });
         let prev = previous_run(dir)?;
         if let Some(prev) = &prev {
-            if !overwrite {
+            // An interrupted run that kept a resume journal: whether this run continues it
+            // is decided once the inputs are known (`pipeline::journal::start`).
+            let resumable = !prev.finished && dir.join(RESUME_DIR).join("run.json").is_file();
+            if !overwrite && !resumable {
                 let what = if prev.finished {
                     "the outputs of an earlier run"
                 } else {
@@ -365,6 +378,8 @@ impl OutputDir {
             stage,
             committed: Vec::new(),
             finished: false,
+            resumable: false,
+            resume_created: false,
             _lock: lock,
         })
     }
@@ -457,6 +472,63 @@ impl OutputDir {
         Ok(())
     }
 
+    /// Whether an earlier run finished here (its outputs are complete).
+    pub fn previous_finished(&self) -> bool {
+        self.previous.as_ref().is_some_and(|p| p.finished)
+    }
+
+    /// Continues the interrupted earlier run (a resume): the files it committed that `keep`
+    /// names become this run's; the others (tiles of work the journal does not record as
+    /// finished) are removed now and written again.
+    pub fn adopt_previous(&mut self, keep: &std::collections::HashSet<String>) -> Result<()> {
+        self.resumable = true;
+        // An interrupted run that had not committed a file yet left nothing to adopt.
+        let Some(prev) = self.previous.take() else {
+            return Ok(());
+        };
+        let jpath = self.dir.join(JOURNAL);
+        let mut journal = open_no_follow(&jpath, OpenOptions::new().append(true))?;
+        writeln!(journal, "resumed\tprocess {}", std::process::id())
+            .map_err(|e| Error::io(&jpath, e))?;
+        for name in &prev.files {
+            if keep.contains(name) {
+                if !self.committed.contains(name) {
+                    self.committed.push(name.clone());
+                }
+                continue;
+            }
+            let p = self.dir.join(name);
+            match std::fs::symlink_metadata(&p) {
+                Ok(m) if m.is_file() => std::fs::remove_file(&p).map_err(|e| Error::io(&p, e))?,
+                _ => {}
+            }
+        }
+        self.journal = Some(journal);
+        Ok(())
+    }
+
+    /// From now on a failure keeps the committed files and the resume directory: the run
+    /// has finished work a rerun continues from.
+    pub fn set_resumable(&mut self) {
+        self.resumable = true;
+    }
+
+    /// Starts a fresh resume directory for this run (an earlier run's is removed first) and
+    /// returns its path; its `parts` subdirectory is created.
+    pub fn fresh_resume_dir(&mut self) -> Result<PathBuf> {
+        let dir = self.dir.join(RESUME_DIR);
+        remove_resume_dir(&dir)?;
+        self.resume_created = true;
+        let parts = dir.join("parts");
+        std::fs::create_dir_all(&parts).map_err(|e| Error::io(&parts, e))?;
+        Ok(dir)
+    }
+
+    /// Removes the resume directory (the run finished).
+    fn clear_resume_dir(&self) -> Result<()> {
+        remove_resume_dir(&self.dir.join(RESUME_DIR))
+    }
+
     /// Files committed so far.
     pub fn committed(&self) -> &[String] {
         &self.committed
@@ -473,6 +545,10 @@ impl OutputDir {
             .and_then(|_| journal.sync_all())
             .map_err(|e| Error::io(&jpath, e))?;
         self.finished = true;
+        // The run is complete: nothing is left to resume.
+        if let Err(e) = self.clear_resume_dir() {
+            tracing::warn!("{e}");
+        }
         Ok(())
     }
 }
@@ -484,6 +560,16 @@ impl Drop for OutputDir {
     fn drop(&mut self) {
         if self.finished {
             return;
+        }
+        if self.resumable {
+            tracing::warn!(
+                "{}: the run did not finish; what it finished is kept — run the same command again to resume it (or pass --restart to start over)",
+                self.dir.display()
+            );
+            return;
+        }
+        if self.resume_created {
+            let _ = remove_resume_dir(&self.dir.join(RESUME_DIR));
         }
         for name in self.committed.iter().rev() {
             let _ = std::fs::remove_file(self.dir.join(name));
@@ -500,6 +586,41 @@ impl Drop for OutputDir {
             remove_if_only_lock(&self.dir);
         }
     }
+}
+
+/// Removes a resume directory: its known files, the parts directory's regular files, then the
+/// directories. Anything else found there (not tessera's) stays, with a warning.
+fn remove_resume_dir(dir: &Path) -> Result<()> {
+    if std::fs::symlink_metadata(dir).is_err() {
+        return Ok(());
+    }
+    let parts = dir.join("parts");
+    if let Ok(rd) = std::fs::read_dir(&parts) {
+        for e in rd.flatten() {
+            if e.file_type().map(|t| t.is_file()).unwrap_or(false) {
+                let p = e.path();
+                std::fs::remove_file(&p).map_err(|e| Error::io(&p, e))?;
+            }
+        }
+        let _ = std::fs::remove_dir(&parts);
+    }
+    // run.json, the log, and a temporary run.json a crash left.
+    if let Ok(rd) = std::fs::read_dir(dir) {
+        for e in rd.flatten() {
+            let name = e.file_name().to_string_lossy().into_owned();
+            let ours = name == "run.json"
+                || name == "log"
+                || (name.starts_with(".run.json.") && name.ends_with(".tmp"));
+            if ours && e.file_type().map(|t| t.is_file()).unwrap_or(false) {
+                let p = e.path();
+                std::fs::remove_file(&p).map_err(|e| Error::io(&p, e))?;
+            }
+        }
+    }
+    if let Err(e) = std::fs::remove_dir(dir) {
+        tracing::warn!("{} was not removed: {e}", dir.display());
+    }
+    Ok(())
 }
 
 /// A journal entry must name a plain file inside the directory.

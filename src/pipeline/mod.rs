@@ -14,6 +14,7 @@
 //! `reader.rs`, `tiler.rs`, `worker.rs`, `writer.rs` — one file each.
 
 mod failure;
+pub mod journal;
 pub mod plan;
 pub mod reader;
 mod tiler;
@@ -31,6 +32,7 @@ use crate::stages::Stage;
 use crate::tiling::{schedule, TileJob};
 use crossbeam_channel::bounded;
 use failure::Failure;
+use journal::{Journal, ResumeState};
 use reader::{ReadMsg, Reader};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -61,7 +63,7 @@ pub fn run_with_stages(
     let t0 = Instant::now();
     // The output directory is taken first: a second run into it refuses before any work, and
     // an earlier run's outputs are replaced only with `output.overwrite`.
-    let mut out = OutputDir::open(out_dir, cfg.output.overwrite)?;
+    let mut out = OutputDir::open(out_dir, cfg.output.overwrite || cfg.output.restart)?;
     // Spill files and decoded MCAP parts live in a fresh work directory of this run: inside
     // `pipeline.spill_dir` when set (which itself is never removed), else in the output's
     // staging directory. Both go away with the run, also when it fails.
@@ -85,9 +87,23 @@ pub fn run_with_stages(
         cfg.pipeline.threads,
     )?;
     let plan = RunPlan::resolve(cfg, stages, &staged.paths, &work_base)?;
+    // The journal of finished cells: an interrupted run of the same fingerprint is resumed.
+    let fingerprint = journal::Fingerprint::of(cfg, &inputs, &plan.grid);
+    let (mut journal, resume) = journal::start(
+        &mut out,
+        &fingerprint,
+        cfg.output.restart,
+        cfg.output.overwrite,
+    )?;
     let scan_s = t0.elapsed().as_secs_f64();
     plan::create_spill_dir(&plan)?;
-    let mut summary = execute(&plan, stages, &mut out, progress)?;
+    let mut summary = execute(
+        &plan,
+        stages,
+        &mut out,
+        progress,
+        (&mut journal, resume.as_ref()),
+    )?;
     summary.seconds.insert("scan".into(), scan_s);
     summary
         .seconds
@@ -129,15 +145,18 @@ pub fn run_with_stages(
     Ok(summary)
 }
 
-/// Wires the roles with bounded channels, runs them to the end and returns the books.
+/// Wires the roles with bounded channels, runs them to the end and returns the books. The
+/// journal records finished cells; the cells `resume` holds are not processed again.
 fn execute(
     plan: &RunPlan,
     stages: &[Box<dyn Stage>],
     out: &mut OutputDir,
     progress: ProgressFn,
+    (journal, resume): (&mut Journal, Option<&ResumeState>),
 ) -> Result<Summary> {
     let set = &plan.set;
     let budget = &plan.budget;
+    let parts = journal.parts().to_path_buf();
     let order = schedule(&set.files, &plan.grid);
     let failure = Failure::default();
     let read_points = AtomicU64::new(0);
@@ -174,6 +193,8 @@ fn execute(
         spill_dir: &plan.spill_dir,
         stitch: plan.stitch.as_ref(),
         keep_going: plan.keep_going,
+        resume,
+        parts: Some(&parts),
     };
     let t_pipeline = Instant::now();
     let mut collector = Collector::new(
@@ -182,6 +203,7 @@ fn execute(
         plan.stitch
             .as_ref()
             .map(|st| (st.params.clone(), st.strip_m)),
+        Some(journal),
     );
     let channels = TilerChannels {
         chunk_rx,

@@ -3,13 +3,14 @@
 //! (or, with stitching, keeps them with local segment ids and summarises the tile's border).
 
 use super::failure::Failure;
+use super::journal::{part_files, FailedEntry, ResumeState, TileEntry, TileResult};
 use super::plan::StitchPlan;
 use super::writer::{Processed, TileMeta, TileOutput, ToWriter};
 use crate::budget::BudgetPlan;
 use crate::error::{Error, Result};
-use crate::io::output::{segment_table_tsv, TileSegments};
+use crate::io::output::{segment_table_tsv, DeferredTile, TileSegments};
 use crate::io::TileWriter;
-use crate::model::{RecordLayout, Tile};
+use crate::model::{CellKey, RecordLayout, Tile};
 use crate::report::FailedTile;
 use crate::stages::{Stage, TileReport};
 use crate::stitch::BorderSummary;
@@ -32,6 +33,11 @@ pub(super) struct WorkerRole<'a> {
     pub stitch: Option<&'a StitchPlan>,
     /// List a tile whose processing fails and go on (`pipeline.keep_going`).
     pub keep_going: bool,
+    /// What the interrupted run this one resumes finished: those cells are not processed.
+    pub resume: Option<&'a ResumeState>,
+    /// The resume journal's parts directory: deferred tiles and their border summaries go
+    /// there (flushed to the disk), and written tiles are flushed before they are committed.
+    pub parts: Option<&'a Path>,
 }
 
 /// Runs one stage on a tile. A panic inside the stage (a bug, or a dependency's on data it
@@ -79,9 +85,19 @@ impl WorkerRole<'_> {
 
     /// One job: split while too big, then each resulting tile processed and sent on; with
     /// stitching, the cell's completion after its last leaf.
-    fn work(&self, job: TileJob, res_tx: &Sender<ToWriter>, spare: &mut TileBuffers) -> Result<()> {
+    fn work(
+        &self,
+        mut job: TileJob,
+        res_tx: &Sender<ToWriter>,
+        spare: &mut TileBuffers,
+    ) -> Result<()> {
         let root = job.name.to_string();
         let cell = (job.id.ix, job.id.iy);
+        if let Some((tiles, failed)) = self.resume.and_then(|r| r.cells.get(&cell)) {
+            job.core_part.release();
+            job.buf_part.release();
+            return self.replay(cell, tiles, failed, res_tx);
+        }
         let mut leaves = 0;
         let mut todo = vec![job];
         let mut was_split = false;
@@ -97,7 +113,8 @@ impl WorkerRole<'_> {
                         Ok(r) => r,
                         Err(e) => {
                             let failed = (name.to_string(), n_core, Some(root.clone()));
-                            self.skip_or_fail(res_tx, failed, std::mem::take(&mut thinned), e)?;
+                            let thinned = std::mem::take(&mut thinned);
+                            self.skip_or_fail(res_tx, failed, (thinned, cell), e)?;
                             continue;
                         }
                     };
@@ -114,22 +131,83 @@ impl WorkerRole<'_> {
             let (name, n_core) = (tile.name.to_string(), tile.n_core as u64);
             let split_root = was_split.then(|| root.clone());
             let dropped = std::mem::take(&mut thinned);
-            let p = match self.process(tile, spare, split_root.clone(), dropped) {
+            let p = match self.process(tile, spare, (split_root.clone(), dropped, cell)) {
                 Ok(p) => p,
                 Err(e) => {
-                    self.skip_or_fail(res_tx, (name, n_core, split_root), dropped, e)?;
+                    self.skip_or_fail(res_tx, (name, n_core, split_root), (dropped, cell), e)?;
                     continue;
                 }
             };
             if let Err(e) = res_tx.send(ToWriter::Tile(Box::new(p))) {
-                e.into_inner().abandon();
+                e.into_inner().abandon(self.parts.is_some());
                 return Ok(());
             }
             leaves += 1;
         }
-        if self.stitch.is_some() {
-            let _ = res_tx.send(ToWriter::CellDone { cell, leaves });
+        let _ = res_tx.send(ToWriter::CellDone {
+            cell,
+            leaves,
+            reused: false,
+        });
+        Ok(())
+    }
+
+    /// A cell the resume journal records as finished: its tiles' results and failures are
+    /// handed on as recorded (deferred tiles with their border summaries, read back).
+    fn replay(
+        &self,
+        cell: CellKey,
+        tiles: &[TileEntry],
+        failed: &[FailedEntry],
+        res_tx: &Sender<ToWriter>,
+    ) -> Result<()> {
+        let resume = self
+            .resume
+            .ok_or_else(|| Error::Internal("replay without a resume journal".into()))?;
+        for t in tiles {
+            let meta = TileMeta {
+                name: t.name.clone(),
+                n_core: t.n_core,
+                buffer_points: t.buffer_points,
+                report: t.report.clone(),
+                split_root: t.split_root.clone(),
+                buffer_thinned: t.buffer_thinned,
+                cell,
+                reused: true,
+                final_files: resume.finals.get(&t.name).cloned(),
+            };
+            let output = match &t.result {
+                TileResult::Written { files } => TileOutput::Reused(files.clone()),
+                TileResult::Deferred { points } => {
+                    let [raw, table, summary] = part_files(&resume.parts, &t.name);
+                    let bytes = std::fs::read(&summary).map_err(|e| Error::io(&summary, e))?;
+                    let what = summary.display().to_string();
+                    let summary = BorderSummary::from_bytes(&bytes, &what)?;
+                    let d = DeferredTile::from_parts(t.name.clone(), raw, table, *points);
+                    TileOutput::Deferred(d, Box::new(summary))
+                }
+            };
+            if res_tx
+                .send(ToWriter::Tile(Box::new(Processed { meta, output })))
+                .is_err()
+            {
+                return Ok(());
+            }
         }
+        for f in failed {
+            let _ = res_tx.send(ToWriter::Failed {
+                failed: f.failed.clone(),
+                split_root: f.split_root.clone(),
+                buffer_thinned: f.buffer_thinned,
+                cell,
+                reused: true,
+            });
+        }
+        let _ = res_tx.send(ToWriter::CellDone {
+            cell,
+            leaves: tiles.len(),
+            reused: true,
+        });
         Ok(())
     }
 
@@ -137,12 +215,12 @@ impl WorkerRole<'_> {
     /// stage's error, a tile too dense for the budget) is reported to the writer and the
     /// worker goes on; anything else (I/O, configuration, cancellation) stops the run.
     /// `(tile, core points, split root)` name the failed tile; `buffer_thinned` counts the
-    /// far buffer copies its job's splits dropped (still booked).
+    /// far buffer copies its job's splits dropped (still booked); `cell` is its grid cell.
     fn skip_or_fail(
         &self,
         res_tx: &Sender<ToWriter>,
         (tile, points, split_root): (String, u64, Option<String>),
-        buffer_thinned: u64,
+        (buffer_thinned, cell): (u64, CellKey),
         e: Error,
     ) -> Result<()> {
         if !(self.keep_going && matches!(e, Error::Stage { .. } | Error::Budget(_))) {
@@ -159,18 +237,20 @@ impl WorkerRole<'_> {
             failed,
             split_root,
             buffer_thinned,
+            cell,
+            reused: false,
         });
         Ok(())
     }
 
     /// Runs the stages on a loaded tile and prepares its output; hands the tile's buffers
     /// back in `spare`.
+    /// `(split root, far buffer copies thinned, grid cell)` are the tile's books.
     fn process(
         &self,
         mut tile: Tile,
         spare: &mut TileBuffers,
-        split_root: Option<String>,
-        buffer_thinned: u64,
+        (split_root, buffer_thinned, cell): (Option<String>, u64, CellKey),
     ) -> Result<Processed> {
         let mut report = TileReport::default();
         for st in self.stages {
@@ -208,17 +288,34 @@ impl WorkerRole<'_> {
             table,
         });
         let output = match (summary, seg) {
-            (Some(summary), Some(seg)) => TileOutput::Deferred(
-                self.writer
-                    .defer(self.spill_dir, &name, &mut records, seg)?,
-                Box::new(summary),
-            ),
-            (_, seg) => TileOutput::Written(self.writer.prepare(
-                self.stage_dir,
-                &name,
-                &mut records,
-                seg,
-            )?),
+            (Some(summary), Some(seg)) => {
+                let dir = self.parts.unwrap_or(self.spill_dir);
+                let d = self.writer.defer(dir, &name, &mut records, seg)?;
+                if self.parts.is_some() {
+                    // The journal names the cell once its parts are on the disk.
+                    let path = part_files(dir, &name)[2].clone();
+                    let res = crate::io::output::write_atomic(&path, &summary.to_bytes())
+                        .and_then(|_| crate::io::output::sync_file(&path))
+                        .and_then(|_| d.sync());
+                    if let Err(e) = res {
+                        d.abandon();
+                        return Err(e);
+                    }
+                }
+                TileOutput::Deferred(d, Box::new(summary))
+            }
+            (_, seg) => {
+                let pending = self
+                    .writer
+                    .prepare(self.stage_dir, &name, &mut records, seg)?;
+                if self.parts.is_some() {
+                    if let Err(e) = pending.sync() {
+                        pending.abandon();
+                        return Err(e);
+                    }
+                }
+                TileOutput::Written(pending)
+            }
         };
         *spare = TileBuffers::reclaim(&mut tile, records);
         drop(tile);
@@ -233,6 +330,9 @@ impl WorkerRole<'_> {
                 report,
                 split_root,
                 buffer_thinned,
+                cell,
+                reused: false,
+                final_files: None,
             },
             output,
         })

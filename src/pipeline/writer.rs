@@ -1,8 +1,10 @@
 //! The writer: runs on the pipeline's own thread, commits finished tiles into the output
 //! directory, keeps the run's books and, when segments are stitched, runs the [`Stitcher`] and
-//! writes each tile once its global segment ids are final.
+//! writes each tile once its global segment ids are final. With a resume journal, it records
+//! each finished cell (after its files are on the disk) and each tile written with global ids.
 
 use super::failure::Failure;
+use super::journal::{Entry, FailedEntry, Journal, TileEntry, TileResult};
 use crate::error::{Error, Result};
 use crate::io::output::DeferredTile;
 use crate::io::workspace::OutputDir;
@@ -11,6 +13,7 @@ use crate::report::{FailedTile, Summary, TileSummary};
 use crate::stages::TileReport;
 use crate::stitch::{BorderSummary, CellKey, CellRelease, StitchParams, Stitcher};
 use crossbeam_channel::Receiver;
+use std::collections::HashMap;
 use std::path::Path;
 use std::time::Instant;
 
@@ -23,6 +26,27 @@ pub(super) struct TileMeta {
     pub split_root: Option<String>,
     /// Far buffer point copies dropped while splitting this tile's job (see `FarThin`).
     pub buffer_thinned: u64,
+    /// Its grid cell.
+    pub cell: CellKey,
+    /// Taken from the resume journal, not processed by this run.
+    pub reused: bool,
+    /// A reused deferred tile that the interrupted run already wrote with its global ids:
+    /// its files in the output directory.
+    pub final_files: Option<Vec<String>>,
+}
+
+impl TileMeta {
+    fn entry(&self, result: TileResult) -> TileEntry {
+        TileEntry {
+            name: self.name.clone(),
+            n_core: self.n_core,
+            buffer_points: self.buffer_points,
+            report: self.report.clone(),
+            split_root: self.split_root.clone(),
+            buffer_thinned: self.buffer_thinned,
+            result,
+        }
+    }
 }
 
 /// A processed tile's output.
@@ -31,6 +55,8 @@ pub(super) enum TileOutput {
     Written(PendingTile),
     /// Stitching: core records with local ids, plus the border summary.
     Deferred(DeferredTile, Box<BorderSummary>),
+    /// Written into the output directory by the interrupted run this one resumes.
+    Reused(Vec<String>),
 }
 
 /// A processed tile.
@@ -43,8 +69,13 @@ pub(super) struct Processed {
 pub(super) enum ToWriter {
     /// A worker finished a tile.
     Tile(Box<Processed>),
-    /// A worker finished every leaf tile of a grid cell (sent after them).
-    CellDone { cell: CellKey, leaves: usize },
+    /// A worker finished every leaf tile of a grid cell (sent after them); `reused` when
+    /// they came from the resume journal.
+    CellDone {
+        cell: CellKey,
+        leaves: usize,
+        reused: bool,
+    },
     /// The tiler released cells (sent before their jobs).
     Released(Vec<CellRelease>),
     /// A tile failed and is left out (`pipeline.keep_going`); the split it came from and the
@@ -53,16 +84,21 @@ pub(super) enum ToWriter {
         failed: FailedTile,
         split_root: Option<String>,
         buffer_thinned: u64,
+        cell: CellKey,
+        reused: bool,
     },
 }
 
 impl ToWriter {
-    /// Deletes the temporary files a message refers to (the run failed).
-    pub fn abandon(self) {
+    /// Deletes the temporary files a message refers to (the run failed). With a resume
+    /// journal (`journaled`) deferred tiles stay: they are the journal's (a cell already
+    /// recorded needs them; an unrecorded one is written again over them).
+    pub fn abandon(self, journaled: bool) {
         if let ToWriter::Tile(p) = self {
             match p.output {
                 TileOutput::Written(pending) => pending.abandon(),
-                TileOutput::Deferred(d, _) => d.abandon(),
+                TileOutput::Deferred(d, _) if !journaled => d.abandon(),
+                TileOutput::Deferred(..) | TileOutput::Reused(_) => {}
             }
         }
     }
@@ -73,6 +109,9 @@ pub(super) struct Collector<'a> {
     writer: &'a TileWriter,
     out: &'a mut OutputDir,
     stitcher: Option<Stitcher<(TileMeta, DeferredTile)>>,
+    /// The resume journal, and the entries of cells whose leaves are still arriving.
+    journal: Option<&'a mut Journal>,
+    open_cells: HashMap<CellKey, (Vec<TileEntry>, Vec<FailedEntry>)>,
     pub summary: Summary,
     pub write_s: f64,
     pub stitch_s: f64,
@@ -85,11 +124,14 @@ impl<'a> Collector<'a> {
         writer: &'a TileWriter,
         out: &'a mut OutputDir,
         stitch: Option<(StitchParams, f64)>,
+        journal: Option<&'a mut Journal>,
     ) -> Self {
         Collector {
             writer,
             out,
             stitcher: stitch.map(|(p, strip_m)| Stitcher::new(p, strip_m)),
+            journal,
+            open_cells: HashMap::new(),
             summary: Summary::default(),
             write_s: 0.0,
             stitch_s: 0.0,
@@ -101,7 +143,7 @@ impl<'a> Collector<'a> {
     pub fn run(&mut self, results: Receiver<ToWriter>, failure: &Failure) {
         for msg in results.iter() {
             if failure.failed() {
-                msg.abandon();
+                msg.abandon(self.journal.is_some());
                 continue;
             }
             if let Err(e) = self.handle(msg) {
@@ -125,17 +167,45 @@ impl<'a> Collector<'a> {
                 }
                 self.stitch_s += t.elapsed().as_secs_f64();
             }
-            ToWriter::CellDone { cell, leaves } => {
+            ToWriter::CellDone {
+                cell,
+                leaves,
+                reused,
+            } => {
                 if let Some(st) = &mut self.stitcher {
                     st.cell_done(cell, leaves)?;
                 }
                 self.stitch_s += t.elapsed().as_secs_f64();
+                let entries = self.open_cells.remove(&cell);
+                if let (Some(j), false) = (self.journal.as_deref_mut(), reused) {
+                    let (tiles, failed) = entries.unwrap_or_default();
+                    j.append(&Entry::Cell {
+                        ix: cell.0,
+                        iy: cell.1,
+                        tiles,
+                        failed,
+                    })?;
+                    self.out.set_resumable();
+                }
             }
             ToWriter::Failed {
                 failed,
                 split_root,
                 buffer_thinned,
+                cell,
+                reused,
             } => {
+                if self.journal.is_some() && !reused {
+                    self.open_cells
+                        .entry(cell)
+                        .or_default()
+                        .1
+                        .push(FailedEntry {
+                            failed: failed.clone(),
+                            split_root: split_root.clone(),
+                            buffer_thinned,
+                        });
+                }
                 let s = &mut self.summary;
                 s.points_failed += failed.points;
                 s.failed_tiles.push(failed);
@@ -148,14 +218,28 @@ impl<'a> Collector<'a> {
             }
             ToWriter::Tile(p) => {
                 let Processed { meta, output } = *p;
+                let journaled = self.journal.is_some() && !meta.reused;
                 match output {
                     TileOutput::Written(pending) => {
+                        let files = pending.names();
                         let path = pending.commit(self.out)?;
+                        if journaled {
+                            let e = meta.entry(TileResult::Written { files });
+                            self.open_cells.entry(meta.cell).or_default().0.push(e);
+                        }
                         self.book(meta, &path);
                         self.write_s += t.elapsed().as_secs_f64();
                     }
+                    TileOutput::Reused(files) => {
+                        let path = self.out.path().join(files.first().map_or("", |f| f));
+                        self.book(meta, &path);
+                    }
                     TileOutput::Deferred(d, summary) => match &mut self.stitcher {
                         Some(st) => {
+                            if journaled {
+                                let e = meta.entry(TileResult::Deferred { points: d.points });
+                                self.open_cells.entry(meta.cell).or_default().0.push(e);
+                            }
                             st.add_tile(*summary, (meta, d))?;
                             self.stitch_s += t.elapsed().as_secs_f64();
                         }
@@ -194,34 +278,69 @@ impl<'a> Collector<'a> {
         for r in ready {
             let (meta, d) = r.payload;
             if res.is_err() {
-                d.abandon();
+                if self.journal.is_none() {
+                    d.abandon();
+                }
                 continue;
             }
-            let stage = self.out.stage().to_path_buf();
-            match self
-                .writer
-                .finish_deferred(&stage, d, &r.ids)
-                .and_then(|p| p.commit(self.out))
-            {
-                Ok(path) => self.book(meta, &path),
-                Err(e) => res = Err(e),
-            }
+            res = self.write_final(meta, d, &r.ids);
         }
         self.write_s += t.elapsed().as_secs_f64();
         res
     }
 
+    /// Writes a deferred tile with its global ids and commits it. With a journal, the tile
+    /// is on the disk and recorded before its deferred records are deleted (a crash in
+    /// between rewrites it); a tile the interrupted run already wrote is only booked.
+    fn write_final(&mut self, meta: TileMeta, d: DeferredTile, ids: &[u64]) -> Result<()> {
+        let stage = self.out.stage().to_path_buf();
+        if let Some(files) = &meta.final_files {
+            let path = self.out.path().join(files.first().map_or("", |f| f));
+            d.abandon();
+            self.book(meta, &path);
+            return Ok(());
+        }
+        let Some(j) = self.journal.as_deref_mut() else {
+            let path = self
+                .writer
+                .finish_deferred(&stage, d, ids)
+                .and_then(|p| p.commit(self.out))?;
+            self.book(meta, &path);
+            return Ok(());
+        };
+        let pending = self.writer.write_deferred(&stage, &d, ids)?;
+        if let Err(e) = pending.sync() {
+            pending.abandon();
+            return Err(e);
+        }
+        let files = pending.names();
+        let path = pending.commit(self.out)?;
+        j.append(&Entry::Final {
+            name: meta.name.clone(),
+            files,
+        })?;
+        self.out.set_resumable();
+        d.abandon();
+        self.book(meta, &path);
+        Ok(())
+    }
+
     fn book(&mut self, meta: TileMeta, path: &Path) {
         let s = &mut self.summary;
+        if meta.reused {
+            s.tiles_reused += 1;
+        } else {
+            s.tiles_recomputed += 1;
+            for (k, v) in &meta.report.seconds {
+                *s.seconds.entry(format!("stage_{k}")).or_default() += v;
+            }
+        }
         s.points_out += meta.n_core;
         s.buffer_points_thinned += meta.buffer_thinned;
         if let Some(root) = meta.split_root {
             if !s.split_tiles.contains(&root) {
                 s.split_tiles.push(root);
             }
-        }
-        for (k, v) in &meta.report.seconds {
-            *s.seconds.entry(format!("stage_{k}")).or_default() += v;
         }
         s.tile_list.push(TileSummary {
             name: meta.name,

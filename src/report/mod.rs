@@ -82,10 +82,16 @@ pub struct Summary {
     /// Core points of the failed tiles (`points_out + points_failed == points_in`).
     #[serde(skip_serializing_if = "is_zero")]
     pub points_failed: u64,
+    /// Tiles a resumed run took from the journal of the interrupted run it continues.
+    #[serde(default)]
+    pub tiles_reused: usize,
+    /// Tiles this run processed (all of them, unless it resumed an interrupted run).
+    #[serde(default)]
+    pub tiles_recomputed: usize,
 }
 
 /// A tile a `keep_going` run left out, and why.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize)]
 pub struct FailedTile {
     /// Tile name (a split tile's leaf, or the job whose split failed).
     pub tile: String,

@@ -9,7 +9,7 @@ use serde::Serialize;
 use std::collections::BTreeMap;
 
 /// What a stage reports about one tile (merged into the run summary).
-#[derive(Debug, Default, Clone, Serialize)]
+#[derive(Debug, Default, Clone, Serialize, serde::Deserialize)]
 pub struct TileReport {
     /// Named statistics, per stage.
     pub stats: BTreeMap<String, serde_json::Value>,

@@ -69,6 +69,33 @@ pub fn tile_before(a: &TileId, b: &TileId) -> bool {
     pa < pb
 }
 
+const SUMMARY_MAGIC: &[u8; 8] = b"TSBSUM01";
+
+/// Reads little-endian fields from a byte slice; `None` past its end.
+struct ByteReader<'a> {
+    b: &'a [u8],
+    at: usize,
+}
+
+impl<'a> ByteReader<'a> {
+    fn take(&mut self, n: usize) -> Option<&'a [u8]> {
+        let s = self.b.get(self.at..self.at.checked_add(n)?)?;
+        self.at += n;
+        Some(s)
+    }
+    fn u64(&mut self) -> Option<u64> {
+        Some(u64::from_le_bytes(self.take(8)?.try_into().ok()?))
+    }
+    fn u32(&mut self) -> Option<u32> {
+        Some(u32::from_le_bytes(self.take(4)?.try_into().ok()?))
+    }
+    /// A count of items of `size` bytes each that must fit in what is left.
+    fn len(&mut self, size: usize) -> Option<usize> {
+        let n = usize::try_from(self.u64()?).ok()?;
+        (n.checked_mul(size)? <= self.b.len() - self.at).then_some(n)
+    }
+}
+
 /// A tile's border summary.
 #[derive(Debug, Clone, PartialEq)]
 pub struct BorderSummary {
@@ -179,6 +206,100 @@ impl BorderSummary {
         self.records() * std::mem::size_of::<BorderRecord>() + self.anchors.len() * 8 + 128
     }
 
+    /// The summary as bytes (little-endian), for a run's resume journal and for the border
+    /// summaries a task of a distributed run leaves for `tessera stitch`.
+    pub fn to_bytes(&self) -> Vec<u8> {
+        let mut b =
+            Vec::with_capacity(96 + self.name.len() + self.anchors.len() * 8 + self.records() * 20);
+        b.extend_from_slice(SUMMARY_MAGIC);
+        b.extend_from_slice(&self.tile.ix.to_le_bytes());
+        b.extend_from_slice(&self.tile.iy.to_le_bytes());
+        b.push(self.tile.level);
+        b.extend_from_slice(&self.tile.path.to_le_bytes());
+        b.extend_from_slice(&(self.name.len() as u64).to_le_bytes());
+        b.extend_from_slice(self.name.as_bytes());
+        for v in [self.core.x0, self.core.y0, self.core.x1, self.core.y1] {
+            b.extend_from_slice(&v.to_le_bytes());
+        }
+        b.extend_from_slice(&(self.anchors.len() as u64).to_le_bytes());
+        for a in &self.anchors {
+            b.extend_from_slice(&a.to_le_bytes());
+        }
+        for list in [&self.inner, &self.outer] {
+            b.extend_from_slice(&(list.len() as u64).to_le_bytes());
+            for r in list {
+                b.extend_from_slice(&r.pid.to_le_bytes());
+                b.extend_from_slice(&r.label.to_le_bytes());
+                b.extend_from_slice(&r.dx.to_le_bytes());
+                b.extend_from_slice(&r.dy.to_le_bytes());
+            }
+        }
+        b
+    }
+
+    /// Reads a summary written by [`BorderSummary::to_bytes`]; `what` names the file in
+    /// errors. Truncated or foreign bytes are an error, never a panic or a huge allocation.
+    pub fn from_bytes(bytes: &[u8], what: &str) -> Result<Self, StitchError> {
+        let bad = |reason: &str| StitchError::BadSummary {
+            tile: what.to_string(),
+            reason: reason.to_string(),
+        };
+        let mut r = ByteReader { b: bytes, at: 0 };
+        if r.take(SUMMARY_MAGIC.len()) != Some(SUMMARY_MAGIC) {
+            return Err(bad("not a tessera border summary"));
+        }
+        let short = || bad("truncated");
+        let tile = TileId {
+            ix: r.u64().ok_or_else(short)? as i64,
+            iy: r.u64().ok_or_else(short)? as i64,
+            level: r.take(1).ok_or_else(short)?[0],
+            path: r.u64().ok_or_else(short)?,
+        };
+        let n = r.len(1).ok_or_else(short)?;
+        let name = String::from_utf8(r.take(n).ok_or_else(short)?.to_vec())
+            .map_err(|_| bad("tile name is not UTF-8"))?;
+        let mut c = [0f64; 4];
+        for v in &mut c {
+            *v = f64::from_bits(r.u64().ok_or_else(short)?);
+        }
+        let core = Rect {
+            x0: c[0],
+            y0: c[1],
+            x1: c[2],
+            y1: c[3],
+        };
+        let n = r.len(8).ok_or_else(short)?;
+        let anchors = (0..n)
+            .map(|_| r.u64().ok_or_else(short))
+            .collect::<Result<Vec<u64>, _>>()?;
+        let mut lists = [Vec::new(), Vec::new()];
+        for list in &mut lists {
+            let n = r.len(20).ok_or_else(short)?;
+            list.reserve_exact(n);
+            for _ in 0..n {
+                let pid = r.u64().ok_or_else(short)?;
+                let label = r.u32().ok_or_else(short)?;
+                let dx = f32::from_bits(r.u32().ok_or_else(short)?);
+                let dy = f32::from_bits(r.u32().ok_or_else(short)?);
+                list.push(BorderRecord { pid, label, dx, dy });
+            }
+        }
+        if r.at != bytes.len() {
+            return Err(bad("trailing bytes"));
+        }
+        let [inner, outer] = lists;
+        let s = BorderSummary {
+            tile,
+            name,
+            core,
+            anchors,
+            inner,
+            outer,
+        };
+        s.validate()?;
+        Ok(s)
+    }
+
     /// Checks that every record's label is one of the tile's labels.
     pub fn validate(&self) -> Result<(), StitchError> {
         let n = self.labels() as u32;
@@ -280,6 +401,21 @@ mod tests {
         assert!(later_point(&cell, &se_nw, 1.0, 5.0)); // north-west leaf: later
         assert!(later_point(&cell, &se_nw, 9.0, 1.0)); // the next cell east: later
         assert!(!later_point(&cell, &se_nw, 5.0, -1.0)); // the cell south: earlier
+    }
+
+    #[test]
+    fn summary_bytes_round_trip_and_truncation_is_an_error() {
+        let t = tile(&[([0.5, 5.0], 1), ([-1.0, 5.0], 2), ([5.0, 5.0], 2)], 1);
+        let s = BorderSummary::build(&t, 2.0, |p| p * 3).unwrap();
+        let b = s.to_bytes();
+        assert_eq!(BorderSummary::from_bytes(&b, "x").unwrap(), s);
+        for cut in 0..b.len() {
+            assert!(BorderSummary::from_bytes(&b[..cut], "x").is_err(), "{cut}");
+        }
+        let mut huge = b.clone();
+        let at = SUMMARY_MAGIC.len() + 8 + 8 + 1 + 8;
+        huge[at..at + 8].copy_from_slice(&u64::MAX.to_le_bytes());
+        assert!(BorderSummary::from_bytes(&huge, "x").is_err());
     }
 
     #[test]
