@@ -84,20 +84,63 @@ impl RunOpts {
 #[derive(Debug, Subcommand)]
 pub enum Command {
     /// Process LAS/LAZ files and MCAP drives (or directories of them) into labelled tiles.
+    ///
+    /// With `--plan DIR`: runs one task of a region plan (`tessera plan`) into
+    /// DIR/tasks/, with the plan's inputs and configuration; `tessera stitch DIR` joins the
+    /// tasks. The task index comes from `--task`, else from `SLURM_ARRAY_TASK_ID`,
+    /// `JOB_COMPLETION_INDEX` or `AWS_BATCH_JOB_ARRAY_INDEX`.
     Run {
         /// Input files or directories.
-        #[arg(required = true)]
+        #[arg(required_unless_present = "plan", conflicts_with = "plan")]
         inputs: Vec<PathBuf>,
         /// Output directory.
+        #[arg(long, required_unless_present = "plan", conflicts_with = "plan")]
+        out: Option<PathBuf>,
+        /// A region plan directory: run one of its tasks.
         #[arg(long)]
-        out: PathBuf,
+        plan: Option<PathBuf>,
+        /// The task to run (0-based).
+        #[arg(long, requires = "plan")]
+        task: Option<usize>,
         /// Shared options.
         #[command(flatten)]
         opts: RunOpts,
     },
+    /// Join the finished tasks of a region plan into the region's tiles: segments stitched
+    /// across task borders, global segment ids, one summary — the output of one `tessera run`
+    /// of the region.
+    Stitch {
+        /// The plan directory.
+        dir: PathBuf,
+        /// Replace the outputs of an earlier stitch (e.g. one that was interrupted).
+        #[arg(long)]
+        overwrite: bool,
+    },
+    /// Write Slurm batch scripts for a region plan: a job array of its tasks and a stitch job
+    /// that runs after all of them succeeded (DIR/slurm/).
+    Slurm {
+        /// The plan directory.
+        dir: PathBuf,
+        /// Number of tasks (must match the plan; default: the plan's).
+        #[arg(long)]
+        tasks: Option<usize>,
+        /// Slurm partition.
+        #[arg(long)]
+        partition: Option<String>,
+        /// Time limit per task (Slurm format, e.g. 02:00:00).
+        #[arg(long)]
+        time: Option<String>,
+        /// Tasks running at once (the array's `%` throttle).
+        #[arg(long)]
+        parallel: Option<usize>,
+        /// Submit with sbatch instead of only writing the scripts.
+        #[arg(long)]
+        submit: bool,
+    },
     /// Plan a region for a cluster: from the LAS/LAZ headers only, the grid tiles with their
     /// estimated points, cut into tasks of spatially compact blocks balanced by points
-    /// (writes DIR/plan.json and DIR/tiles.tsv).
+    /// (writes DIR/plan.json, DIR/tiles.tsv and DIR/config.toml, the settings every task
+    /// runs with).
     Plan {
         /// Input files or directories (LAS/LAZ).
         #[arg(required = true)]

@@ -76,12 +76,19 @@ pub fn plan_region(inputs: &[PathBuf], grid: Grid, tasks: usize) -> Result<Regio
             p.display()
         )));
     }
+    // Absolute paths: the tasks run elsewhere (another working directory, another node).
+    let paths = paths
+        .iter()
+        .map(|p| std::fs::canonicalize(p).map_err(|e| Error::io(p, e)))
+        .collect::<Result<Vec<PathBuf>>>()?;
     let mut cells: HashMap<(i64, i64), f64> = HashMap::new();
     let mut total = 0u64;
     for (i, p) in paths.iter().enumerate() {
         let f = scan_file(p, i)?;
         total += f.points;
-        spread(&f.bounds, f.points, &grid, &mut cells);
+        // Over the region where the file's points may lie (its bounds plus the rounding
+        // tolerance the tiler accepts): a cell only a rounded point reaches is planned too.
+        spread(&f.accepted(), f.points, &grid, &mut cells);
     }
     let mut tiles: Vec<PlannedTile> = cells
         .into_iter()
@@ -163,10 +170,11 @@ fn spread(bounds: &Rect, points: u64, grid: &Grid, cells: &mut HashMap<(i64, i64
 }
 
 impl RegionPlan {
-    /// Writes `plan.json` (grid, inputs, tasks) and `tiles.tsv` (one line per tile: `ix`,
-    /// `iy`, estimated points, task) into `dir` (created if missing). Each file is written
-    /// whole and renamed into place; an existing plan is never replaced.
-    pub fn write(&self, dir: &Path) -> Result<()> {
+    /// Writes `plan.json` (grid, inputs, tasks), `tiles.tsv` (one line per tile: `ix`,
+    /// `iy`, estimated points, task) and `config.toml` (`settings`: every effective setting,
+    /// which the tasks and the stitch run with) into `dir` (created if missing). Each file is
+    /// written whole and renamed into place; an existing plan is never replaced.
+    pub fn write(&self, dir: &Path, settings: &std::collections::BTreeMap<String, String>) -> Result<()> {
         std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
         let json = dir.join("plan.json");
         if json.exists() {
@@ -180,6 +188,15 @@ impl RegionPlan {
             tsv.push_str(&format!("{}\t{}\t{}\t{}\n", t.ix, t.iy, t.points, t.task));
         }
         crate::io::write_atomic(&dir.join("tiles.tsv"), tsv.as_bytes())?;
+        let mut toml = String::from(
+            "# The settings of this plan's runs (written by `tessera plan`): every task and the\n# stitch use them, so the tasks' tiles are those of one run of the region.\n",
+        );
+        for (k, v) in settings {
+            // Dotted keys: one line per setting, valid TOML.
+            let key: Vec<String> = k.split('.').map(|p| format!("{p:?}")).collect();
+            toml.push_str(&format!("{} = {v}\n", key.join(".")));
+        }
+        crate::io::write_atomic(&dir.join("config.toml"), toml.as_bytes())?;
         let body = serde_json::to_vec_pretty(self).map_err(|e| Error::Internal(e.to_string()))?;
         // plan.json last: it marks the plan complete.
         crate::io::write_atomic(&json, &body)

@@ -8,6 +8,7 @@ mod plan;
 mod progress;
 mod run;
 mod samples;
+mod slurm;
 mod synth;
 mod thin;
 
@@ -17,7 +18,35 @@ use tessera::cli::{Cli, Command};
 pub fn dispatch(cli: Cli) -> anyhow::Result<()> {
     let quiet = cli.quiet;
     match cli.command {
-        Command::Run { inputs, out, opts } => run::run(&inputs, &out, &opts, quiet),
+        Command::Run {
+            inputs,
+            out,
+            plan,
+            task,
+            opts,
+        } => match (plan, out) {
+            (Some(plan), _) => run::run_task(&plan, task, &opts, quiet),
+            (None, Some(out)) => run::run(&inputs, &out, &opts, quiet),
+            (None, None) => Err(tessera::Error::Config("run: --out is required".into()).into()),
+        },
+        Command::Stitch { dir, overwrite } => run::stitch(&dir, overwrite, quiet),
+        Command::Slurm {
+            dir,
+            tasks,
+            partition,
+            time,
+            parallel,
+            submit,
+        } => slurm::slurm(
+            &dir,
+            &slurm::SlurmOpts {
+                tasks,
+                partition,
+                time,
+                parallel,
+                submit,
+            },
+        ),
         Command::Plan {
             inputs,
             out,

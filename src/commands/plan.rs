@@ -19,7 +19,7 @@ pub fn plan(
         buffer_m: cfg.tiling.buffer_m,
     };
     let plan = tessera::region::plan_region(inputs, grid, tasks)?;
-    plan.write(out)?;
+    plan.write(out, &cfg.effective)?;
     if !quiet {
         println!(
             "{} inputs, {} points, {} tiles in {} tasks ({} m tiles); {}",

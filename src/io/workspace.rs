@@ -553,6 +553,56 @@ impl OutputDir {
     }
 }
 
+impl OutputDir {
+    /// Like [`OutputDir::finish`], but the resume directory stays: a task of a distributed
+    /// run leaves its journal (deferred tiles, border summaries) for `tessera stitch`.
+    pub fn finish_keeping_journal(mut self, summary: &[u8]) -> Result<()> {
+        let staged = self.stage().join(SUMMARY);
+        std::fs::write(&staged, summary).map_err(|e| Error::io(&staged, e))?;
+        self.commit(&[(staged, SUMMARY.to_string())])?;
+        let jpath = self.dir.join(JOURNAL);
+        let journal = self.start_writing()?;
+        writeln!(journal, "done")
+            .and_then(|_| journal.sync_all())
+            .map_err(|e| Error::io(&jpath, e))?;
+        self.finished = true;
+        Ok(())
+    }
+
+    /// Adds existing files (another run's, e.g. a task's tiles) under `name`s by hard link
+    /// (a copy across file systems); the sources stay. Recorded like [`OutputDir::commit`].
+    pub fn link(&mut self, files: &[(PathBuf, String)]) -> Result<()> {
+        for (src, name) in files {
+            let staged = self.stage().join(name);
+            if std::fs::hard_link(src, &staged).is_err() {
+                std::fs::copy(src, &staged).map_err(|e| Error::io(src, e))?;
+            }
+            self.commit(&[(staged, name.clone())])?;
+        }
+        Ok(())
+    }
+}
+
+/// Removes what a finished run left in `dir` (a task directory once `tessera stitch` has
+/// finished): the files its journal names, its resume directory, its bookkeeping, and the
+/// directory when nothing else is in it.
+pub fn remove_run_dir(dir: &Path) -> Result<()> {
+    if let Some(prev) = previous_run(dir)? {
+        for name in &prev.files {
+            let p = dir.join(name);
+            if std::fs::symlink_metadata(&p).is_ok_and(|m| m.is_file()) {
+                std::fs::remove_file(&p).map_err(|e| Error::io(&p, e))?;
+            }
+        }
+    }
+    remove_resume_dir(&dir.join(RESUME_DIR))?;
+    for f in [JOURNAL, LOCK_FILE] {
+        let _ = std::fs::remove_file(dir.join(f));
+    }
+    let _ = std::fs::remove_dir(dir);
+    Ok(())
+}
+
 impl Drop for OutputDir {
     /// A run that fails takes its partial outputs with it: the directory is left as the run
     /// found it (less what `--overwrite` removed). A killed run cannot do this; its journal

@@ -307,7 +307,8 @@ impl Journal {
     }
 }
 
-fn read_log(path: &Path, parts: PathBuf) -> Result<ResumeState> {
+/// Reads a journal's log (`parts`: its parts directory).
+pub fn read_log(path: &Path, parts: PathBuf) -> Result<ResumeState> {
     let text = match std::fs::read(path) {
         Ok(t) => t,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Vec::new(),

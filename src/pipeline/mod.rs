@@ -17,6 +17,8 @@ mod failure;
 pub mod journal;
 pub mod plan;
 pub mod reader;
+pub mod stitch_dir;
+pub mod task;
 mod tiler;
 mod worker;
 mod writer;
@@ -60,6 +62,41 @@ pub fn run_with_stages(
     stages: &[Box<dyn Stage>],
     progress: ProgressFn,
 ) -> Result<Summary> {
+    run_scoped(inputs, out_dir, cfg, stages, progress, None)
+}
+
+/// Runs task `index` of the plan in `plan_dir` into its task directory (see [`task`]).
+/// `None` when the task had already finished (a retried array task).
+pub fn run_task(plan_dir: &Path, index: usize, progress: ProgressFn) -> Result<Option<Summary>> {
+    let plan = task::PlanFile::load(plan_dir)?;
+    if index >= plan.tasks.len() {
+        return Err(Error::Config(format!(
+            "task {index}: the plan in {} has {} tasks (0..{})",
+            plan_dir.display(),
+            plan.tasks.len(),
+            plan.tasks.len()
+        )));
+    }
+    let out = task::task_dir(plan_dir, index);
+    if out.join(crate::io::workspace::SUMMARY).is_file() {
+        tracing::info!("task {index} has finished already ({})", out.display());
+        return Ok(None);
+    }
+    let cfg = Config::load(Some(&task::PlanFile::config_path(plan_dir)), &[])?;
+    let stages = cfg.build_stages()?;
+    let scope = task::TaskScope::load(plan_dir, index)?;
+    run_scoped(&plan.inputs, &out, &cfg, &stages, progress, Some(&scope)).map(Some)
+}
+
+/// A run of the whole region (`scope` None) or of one task of a plan.
+fn run_scoped(
+    inputs: &[PathBuf],
+    out_dir: &Path,
+    cfg: &Config,
+    stages: &[Box<dyn Stage>],
+    progress: ProgressFn,
+    scope: Option<&task::TaskScope>,
+) -> Result<Summary> {
     let t0 = Instant::now();
     // The output directory is taken first: a second run into it refuses before any work, and
     // an earlier run's outputs are replaced only with `output.overwrite`.
@@ -88,7 +125,10 @@ pub fn run_with_stages(
     )?;
     let plan = RunPlan::resolve(cfg, stages, &staged.paths, &work_base)?;
     // The journal of finished cells: an interrupted run of the same fingerprint is resumed.
-    let fingerprint = journal::Fingerprint::of(cfg, &inputs, &plan.grid);
+    let mut fingerprint = journal::Fingerprint::of(cfg, &inputs, &plan.grid);
+    if let Some(sc) = scope {
+        fingerprint.grid.push_str(&format!("; task {}", sc.index));
+    }
     let (mut journal, resume) = journal::start(
         &mut out,
         &fingerprint,
@@ -97,12 +137,12 @@ pub fn run_with_stages(
     )?;
     let scan_s = t0.elapsed().as_secs_f64();
     plan::create_spill_dir(&plan)?;
-    let mut summary = execute(
+    let (mut summary, promised) = execute(
         &plan,
         stages,
         &mut out,
         progress,
-        (&mut journal, resume.as_ref()),
+        (&mut journal, resume.as_ref(), scope),
     )?;
     summary.seconds.insert("scan".into(), scan_s);
     summary
@@ -111,7 +151,7 @@ pub fn run_with_stages(
     summary.version = env!("CARGO_PKG_VERSION").into();
     summary.inputs = plan.set.files.len();
     summary.mcap = staged.reports.clone();
-    summary.points_in = plan.set.total_points;
+    summary.points_in = promised.points_in;
     summary.memory_budget_mb = cfg.pipeline.memory_budget_mb;
     summary.point_format = plan.set.layout.format.to_u8().unwrap_or(255);
     summary.skipped_inputs = plan.skipped_inputs.clone();
@@ -127,37 +167,57 @@ pub fn run_with_stages(
     summary.budget = Some(plan.budget.clone());
     summary.peak_rss_mb = peak_rss_mb().unwrap_or(0.0);
     // Every point the headers promise was read (the reader checks each file's count), and
-    // every point read was written exactly once, or belongs to a tile listed as failed.
-    if summary.points_read != summary.points_in
+    // every point read was written exactly once, or belongs to a tile listed as failed. (A
+    // task reads the inputs reaching its cells and writes its cells' core points.)
+    if summary.points_read != promised.read
         || summary.points_out + summary.points_failed != summary.points_in
     {
         return Err(Error::Internal(format!(
-            "the input headers promise {} points; {} were read, {} written and {} in failed tiles",
-            summary.points_in, summary.points_read, summary.points_out, summary.points_failed
+            "the input headers promise {} points to read and {} to write; {} were read, {} written and {} in failed tiles",
+            promised.read, summary.points_in, summary.points_read, summary.points_out, summary.points_failed
         )));
     }
     let json = serde_json::to_vec_pretty(&summary).map_err(|e| Error::Internal(e.to_string()))?;
     // The run's files are all in place; the summary comes last and marks the run finished.
     // (A failure before this point drops `out`, which removes this run's partial outputs.)
-    out.finish(&json)?;
+    // A task keeps its journal: `tessera stitch` reads it.
+    if scope.is_some() {
+        out.finish_keeping_journal(&json)?;
+    } else {
+        out.finish(&json)?;
+    }
     drop(staged);
     drop(spill_work);
     Ok(summary)
 }
 
+/// Points a run must read and write.
+struct Promised {
+    /// Announced by the headers of the inputs it reads.
+    read: u64,
+    /// Core points of its cells (all points, for a run of the whole region).
+    points_in: u64,
+}
+
 /// Wires the roles with bounded channels, runs them to the end and returns the books. The
-/// journal records finished cells; the cells `resume` holds are not processed again.
+/// journal records finished cells; the cells `resume` holds are not processed again; a task
+/// (`scope`) reads only the inputs reaching its cells and bins only its cells.
 fn execute(
     plan: &RunPlan,
     stages: &[Box<dyn Stage>],
     out: &mut OutputDir,
     progress: ProgressFn,
-    (journal, resume): (&mut Journal, Option<&ResumeState>),
-) -> Result<Summary> {
+    (journal, resume, scope): (&mut Journal, Option<&ResumeState>, Option<&task::TaskScope>),
+) -> Result<(Summary, Promised)> {
     let set = &plan.set;
     let budget = &plan.budget;
     let parts = journal.parts().to_path_buf();
-    let order = schedule(&set.files, &plan.grid);
+    let mut order = schedule(&set.files, &plan.grid);
+    if let Some(sc) = scope {
+        order.retain(|&i| sc.reads(&set.files[i], &plan.grid));
+    }
+    let to_read: u64 = order.iter().map(|&i| set.files[i].points).sum();
+    let core_points = AtomicU64::new(0);
     let failure = Failure::default();
     let read_points = AtomicU64::new(0);
     let max_open = AtomicU64::new(0);
@@ -172,7 +232,7 @@ fn execute(
         order: &order,
         layout: &set.layout,
         chunk_points: budget.chunk_points,
-        total_points: set.total_points,
+        total_points: to_read,
         progress,
     };
     let tiler = TilerRole {
@@ -182,6 +242,7 @@ fn execute(
         spill_dir: &plan.spill_dir,
         spill_bytes: budget.spill_bytes,
         near_m: budget.near_m(),
+        scope: scope.map(|s| &s.cells),
     };
     let worker = WorkerRole {
         layout: &set.layout,
@@ -197,24 +258,25 @@ fn execute(
         parts: Some(&parts),
     };
     let t_pipeline = Instant::now();
+    // A task does not stitch: its deferred tiles stay in its journal for `tessera stitch`.
+    let stitching = plan.stitch.as_ref().filter(|_| scope.is_none());
     let mut collector = Collector::new(
         &writer,
         out,
-        plan.stitch
-            .as_ref()
-            .map(|st| (st.params.clone(), st.strip_m)),
+        stitching.map(|st| (st.params.clone(), st.strip_m)),
         Some(journal),
     );
+    collector.keep_deferred = scope.is_some();
     let channels = TilerChannels {
         chunk_rx,
         free_tx,
         job_tx,
         // The tiler tells the stitcher which cells it releases, before their jobs leave.
-        release_tx: plan.stitch.is_some().then(|| res_tx.clone()),
+        release_tx: stitching.is_some().then(|| res_tx.clone()),
     };
     let (read_s, tile_s) = std::thread::scope(|s| {
         let read = s.spawn(|| reader.run(chunk_tx, free_rx, &failure, &read_points));
-        let tile = s.spawn(|| tiler.run(channels, &failure, &max_open));
+        let tile = s.spawn(|| tiler.run(channels, &failure, (&max_open, &core_points)));
         for _ in 0..budget.workers {
             let (jobs, results) = (job_rx.clone(), res_tx.clone());
             let (worker, failure) = (&worker, &failure);
@@ -239,7 +301,7 @@ fn execute(
         stitch_s,
         ..
     } = collector;
-    if plan.stitch.is_some() {
+    if stitching.is_some() {
         summary.seconds.insert("stitch".into(), stitch_s);
     }
     summary.buffer_m = plan.grid.buffer_m;
@@ -258,5 +320,15 @@ fn execute(
     summary
         .seconds
         .insert("pipeline".into(), t_pipeline.elapsed().as_secs_f64());
-    Ok(summary)
+    let points_in = match scope {
+        Some(_) => core_points.load(Ordering::Relaxed),
+        None => set.total_points,
+    };
+    Ok((
+        summary,
+        Promised {
+            read: to_read,
+            points_in,
+        },
+    ))
 }

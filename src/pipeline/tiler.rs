@@ -24,6 +24,8 @@ pub(super) struct TilerRole<'a> {
     pub spill_bytes: usize,
     /// Buffer points within this distance of a core are counted per job (`TileJob::n_near`).
     pub near_m: f64,
+    /// A task of a distributed run: only these cells are binned.
+    pub scope: Option<&'a std::collections::HashSet<crate::model::CellKey>>,
 }
 
 /// The tiler's channel ends.
@@ -37,10 +39,15 @@ pub(super) struct TilerChannels {
 
 impl TilerRole<'_> {
     /// Runs until the reader is done or the run fails; returns the seconds spent. The peak
-    /// number of open tiles goes to `max_open`.
-    pub fn run(&self, ch: TilerChannels, failure: &Failure, max_open: &AtomicU64) -> f64 {
+    /// number of open tiles goes to `max_open`, the core points binned to `core_points`.
+    pub fn run(
+        &self,
+        ch: TilerChannels,
+        failure: &Failure,
+        (max_open, core_points): (&AtomicU64, &AtomicU64),
+    ) -> f64 {
         let t = Instant::now();
-        if let Err(e) = self.tile_all(&ch, failure, max_open) {
+        if let Err(e) = self.tile_all(&ch, failure, (max_open, core_points)) {
             failure.set(e);
         }
         // Dropping both ends here (not at the end of the run's scope) is what lets a blocked
@@ -49,7 +56,12 @@ impl TilerRole<'_> {
         t.elapsed().as_secs_f64()
     }
 
-    fn tile_all(&self, ch: &TilerChannels, failure: &Failure, max_open: &AtomicU64) -> Result<()> {
+    fn tile_all(
+        &self,
+        ch: &TilerChannels,
+        failure: &Failure,
+        (max_open, core_points): (&AtomicU64, &AtomicU64),
+    ) -> Result<()> {
         let mut tiler = Tiler::new(
             self.grid,
             self.layout,
@@ -58,6 +70,9 @@ impl TilerRole<'_> {
             self.spill_bytes,
             self.near_m,
         );
+        if let Some(cells) = self.scope {
+            tiler.restrict(cells);
+        }
         for msg in ch.chunk_rx.iter() {
             match msg {
                 ReadMsg::Chunk {
@@ -82,6 +97,7 @@ impl TilerRole<'_> {
         }
         let jobs = tiler.finish()?;
         release(&mut tiler, ch, jobs);
+        core_points.store(tiler.core_points(), Ordering::Relaxed);
         Ok(())
     }
 }

@@ -57,6 +57,9 @@ pub(super) enum TileOutput {
     Deferred(DeferredTile, Box<BorderSummary>),
     /// Written into the output directory by the interrupted run this one resumes.
     Reused(Vec<String>),
+    /// Written by a task of a distributed run: (its path, its name in the output), linked
+    /// into place by `tessera stitch`.
+    Link(Vec<(std::path::PathBuf, String)>),
 }
 
 /// A processed tile.
@@ -98,7 +101,7 @@ impl ToWriter {
             match p.output {
                 TileOutput::Written(pending) => pending.abandon(),
                 TileOutput::Deferred(d, _) if !journaled => d.abandon(),
-                TileOutput::Deferred(..) | TileOutput::Reused(_) => {}
+                TileOutput::Deferred(..) | TileOutput::Reused(_) | TileOutput::Link(_) => {}
             }
         }
     }
@@ -112,6 +115,9 @@ pub(super) struct Collector<'a> {
     /// The resume journal, and the entries of cells whose leaves are still arriving.
     journal: Option<&'a mut Journal>,
     open_cells: HashMap<CellKey, (Vec<TileEntry>, Vec<FailedEntry>)>,
+    /// A task of a distributed run: deferred tiles are booked and left in the journal (no
+    /// stitcher); `tessera stitch`: the deferred files it writes from are left in place too.
+    pub keep_deferred: bool,
     pub summary: Summary,
     pub write_s: f64,
     pub stitch_s: f64,
@@ -132,6 +138,7 @@ impl<'a> Collector<'a> {
             stitcher: stitch.map(|(p, strip_m)| Stitcher::new(p, strip_m)),
             journal,
             open_cells: HashMap::new(),
+            keep_deferred: false,
             summary: Summary::default(),
             write_s: 0.0,
             stitch_s: 0.0,
@@ -230,6 +237,12 @@ impl<'a> Collector<'a> {
                         self.book(meta, &path);
                         self.write_s += t.elapsed().as_secs_f64();
                     }
+                    TileOutput::Link(files) => {
+                        self.out.link(&files)?;
+                        let path = self.out.path().join(files.first().map_or("", |f| &f.1));
+                        self.book(meta, &path);
+                        self.write_s += t.elapsed().as_secs_f64();
+                    }
                     TileOutput::Reused(files) => {
                         let path = self.out.path().join(files.first().map_or("", |f| f));
                         self.book(meta, &path);
@@ -242,6 +255,14 @@ impl<'a> Collector<'a> {
                             }
                             st.add_tile(*summary, (meta, d))?;
                             self.stitch_s += t.elapsed().as_secs_f64();
+                        }
+                        None if self.keep_deferred => {
+                            if journaled {
+                                let e = meta.entry(TileResult::Deferred { points: d.points });
+                                self.open_cells.entry(meta.cell).or_default().0.push(e);
+                            }
+                            let raw = d.files().0.to_path_buf();
+                            self.book(meta, &raw);
                         }
                         None => {
                             d.abandon();
@@ -301,10 +322,12 @@ impl<'a> Collector<'a> {
             return Ok(());
         }
         let Some(j) = self.journal.as_deref_mut() else {
-            let path = self
-                .writer
-                .finish_deferred(&stage, d, ids)
-                .and_then(|p| p.commit(self.out))?;
+            let path = if self.keep_deferred {
+                self.writer.write_deferred(&stage, &d, ids)
+            } else {
+                self.writer.finish_deferred(&stage, d, ids)
+            }
+            .and_then(|p| p.commit(self.out))?;
             self.book(meta, &path);
             return Ok(());
         };

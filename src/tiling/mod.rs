@@ -40,6 +40,10 @@ pub struct Tiler<'a> {
     releases: Vec<CellRelease>,
     /// Buffer points within this distance of a tile's core are counted ([`TileJob::n_near`]).
     near_m: f64,
+    /// A task of a distributed run bins only its own cells ([`Tiler::restrict`]).
+    scope: Option<&'a std::collections::HashSet<crate::model::CellKey>>,
+    /// Core points binned into cells in scope.
+    core_points: u64,
 }
 
 fn reach(file: &InputFile, layout: &RecordLayout) -> Rect {
@@ -70,7 +74,21 @@ impl<'a> Tiler<'a> {
             open: TileMap::default(),
             last: None,
             releases: Vec::new(),
+            scope: None,
+            core_points: 0,
         }
+    }
+
+    /// Bins only points of `cells` (as core or buffer points): a task of a distributed run.
+    /// Its tiles get exactly the points they get in a run of the whole region, in the same
+    /// order, as long as every input reaching them is read, in the run's order.
+    pub fn restrict(&mut self, cells: &'a std::collections::HashSet<crate::model::CellKey>) {
+        self.scope = Some(cells);
+    }
+
+    /// Core points binned so far (into cells in scope).
+    pub fn core_points(&self) -> u64 {
+        self.core_points
     }
 
     /// Number of tiles currently open (receiving points).
@@ -94,22 +112,27 @@ impl<'a> Tiler<'a> {
             let [x, y, _] = p;
             let pid = point_id(file, first + i as u64);
             let (ix, iy) = grid.cell(x, y);
-            let slot = match self.last {
-                Some((lx, ly, s)) if lx == ix && ly == iy => s,
-                _ => {
-                    let s = self.open_slot(TileId::grid(ix, iy));
-                    self.last = Some((ix, iy, s));
-                    s
-                }
-            };
-            self.spill.push(slot, Part::Core, pid, rec)?;
+            let scope = self.scope;
+            let in_scope = |c: (i64, i64)| scope.is_none_or(|s| s.contains(&c));
+            if in_scope((ix, iy)) {
+                let slot = match self.last {
+                    Some((lx, ly, s)) if lx == ix && ly == iy => s,
+                    _ => {
+                        let s = self.open_slot(TileId::grid(ix, iy));
+                        self.last = Some((ix, iy, s));
+                        s
+                    }
+                };
+                self.spill.push(slot, Part::Core, pid, rec)?;
+                self.core_points += 1;
+            }
             if b > 0.0 {
                 let r = grid.cell_rect(ix, iy);
                 if x < r.x0 + b || x >= r.x1 - b || y < r.y0 + b || y >= r.y1 - b {
                     let mut err = Ok(());
                     let near_m = self.near_m;
                     grid.assign(x, y, |tile, is_core| {
-                        if !is_core && err.is_ok() {
+                        if !is_core && err.is_ok() && in_scope((tile.ix, tile.iy)) {
                             let s = self.open_slot(tile);
                             err = self.spill.push(s, Part::Buffer, pid, rec);
                             if grid

@@ -1,0 +1,212 @@
+//! `tessera stitch DIR`: joins the finished tasks of a plan into the region's output — the
+//! same tiles, byte for byte, as one `tessera run` of the region.
+//!
+//! Every task's journal lists its finished cells. The cells are fed to the writer of a run
+//! (the same [`Collector`] and stitcher) in (ix, iy) order, each announced with its later
+//! neighbours as still open — so the stitcher's frontier is about two grid columns, whatever
+//! the region's size — then its tiles with their border summaries, then its completion.
+//! Global ids are defined by point ordinals, not by order, so they are those of a single run.
+//! Tiles written by tasks (runs without stitching) are linked into place; deferred tiles are
+//! written with their global ids. The tasks' directories are removed once the region's
+//! summary is written; until then a stitch that fails or is killed can simply be run again
+//! (with `--overwrite`).
+
+use super::journal::{part_files, read_log, TileResult};
+use super::task::{task_dir, PlanFile};
+use super::writer::{Collector, Processed, TileMeta, TileOutput, ToWriter};
+use super::RunPlan;
+use crate::config::Config;
+use crate::error::{Error, Result};
+use crate::io::output::DeferredTile;
+use crate::io::workspace::{remove_run_dir, OutputDir, RESUME_DIR, SUMMARY};
+use crate::model::CellKey;
+use crate::report::{peak_rss_mb, Summary};
+use crate::stitch::{BorderSummary, CellRelease};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// A finished cell of some task.
+struct TaskCell {
+    task: usize,
+    tiles: Vec<super::journal::TileEntry>,
+    failed: Vec<super::journal::FailedEntry>,
+}
+
+/// Stitches the plan in `dir` (see the module docs); `overwrite` replaces the outputs of an
+/// earlier stitch.
+pub fn stitch_plan_dir(dir: &Path, overwrite: bool) -> Result<Summary> {
+    let t0 = Instant::now();
+    let plan = PlanFile::load(dir)?;
+    let n_tasks = plan.tasks.len();
+    let unfinished: Vec<usize> = (0..n_tasks)
+        .filter(|&i| !task_dir(dir, i).join(SUMMARY).is_file())
+        .collect();
+    if !unfinished.is_empty() {
+        let shown: Vec<String> = unfinished.iter().take(10).map(|i| i.to_string()).collect();
+        return Err(Error::Config(format!(
+            "{}: {} of {n_tasks} tasks have not finished (tasks {}{}); run them (`tessera run --plan {} --task I`) first",
+            dir.display(),
+            unfinished.len(),
+            shown.join(", "),
+            if unfinished.len() > 10 { ", …" } else { "" },
+            dir.display()
+        )));
+    }
+    let cfg = Config::load(Some(&PlanFile::config_path(dir)), &[])?;
+    let stages = cfg.build_stages()?;
+    let mut out = OutputDir::open(dir, overwrite)?;
+    let work = out.stage().to_path_buf();
+    let run = RunPlan::resolve(&cfg, &stages, &plan.inputs, &work)?;
+    if run.set.total_points != plan.points {
+        return Err(Error::Config(format!(
+            "{}: the inputs now announce {} points, the plan {}; plan again",
+            dir.display(),
+            run.set.total_points,
+            plan.points
+        )));
+    }
+    // Every task's finished cells; a cell belongs to one task.
+    let mut cells: BTreeMap<CellKey, TaskCell> = BTreeMap::new();
+    for task in 0..n_tasks {
+        let tdir = task_dir(dir, task).join(RESUME_DIR);
+        let st = read_log(&tdir.join("log"), tdir.join("parts"))?;
+        for (cell, (tiles, failed)) in st.cells {
+            if let Some(other) = cells.insert(
+                cell,
+                TaskCell {
+                    task,
+                    tiles,
+                    failed,
+                },
+            ) {
+                return Err(Error::Internal(format!(
+                    "cell {cell:?} was processed by tasks {} and {task}",
+                    other.task
+                )));
+            }
+        }
+    }
+    let writer = run.tile_writer()?;
+    let stitching = run.stitch.as_ref();
+    let mut collector = Collector::new(
+        &writer,
+        &mut out,
+        stitching.map(|st| (st.params.clone(), st.strip_m)),
+        None,
+    );
+    collector.keep_deferred = true;
+    let keys: Vec<CellKey> = cells.keys().copied().collect();
+    for &cell in &keys {
+        let c = &cells[&cell];
+        feed_cell(&mut collector, dir, cell, c, |n| n > cell && cells.contains_key(&n))?;
+    }
+    collector.finish()?;
+    let Collector {
+        mut summary,
+        write_s,
+        stitch_s,
+        ..
+    } = collector;
+    summary.tile_list.sort_by(|a, b| a.name.cmp(&b.name));
+    summary.failed_tiles.sort_by(|a, b| a.tile.cmp(&b.tile));
+    summary.split_tiles.sort();
+    summary.tiles = summary.tile_list.len();
+    summary.tiles_split = summary.split_tiles.len();
+    summary.version = env!("CARGO_PKG_VERSION").into();
+    summary.inputs = run.set.files.len();
+    summary.points_in = plan.points;
+    summary.points_read = plan.points;
+    summary.buffer_m = run.grid.buffer_m;
+    summary.memory_budget_mb = cfg.pipeline.memory_budget_mb;
+    summary.point_format = run.set.layout.format.to_u8().unwrap_or(255);
+    summary.budget = Some(run.budget.clone());
+    summary.seconds.insert("write".into(), write_s);
+    if stitching.is_some() {
+        summary.seconds.insert("stitch".into(), stitch_s);
+    }
+    summary
+        .seconds
+        .insert("total".into(), t0.elapsed().as_secs_f64());
+    summary.peak_rss_mb = peak_rss_mb().unwrap_or(0.0);
+    // Every point of the region is in exactly one task's cells: written, or in a failed tile.
+    if summary.points_out + summary.points_failed != plan.points {
+        return Err(Error::Internal(format!(
+            "the plan's inputs announce {} points; the tasks wrote {} and failed {}",
+            plan.points, summary.points_out, summary.points_failed
+        )));
+    }
+    let json = serde_json::to_vec_pretty(&summary).map_err(|e| Error::Internal(e.to_string()))?;
+    out.finish(&json)?;
+    drop(run);
+    for task in 0..n_tasks {
+        remove_run_dir(&task_dir(dir, task))?;
+    }
+    let _ = std::fs::remove_dir(dir.join("tasks"));
+    Ok(summary)
+}
+
+/// Hands one finished cell to the writer: its release (later neighbours still open), its
+/// tiles, its failed tiles and its completion.
+fn feed_cell(
+    collector: &mut Collector<'_>,
+    dir: &Path,
+    cell: CellKey,
+    c: &TaskCell,
+    later: impl Fn(CellKey) -> bool,
+) -> Result<()> {
+    let tdir = task_dir(dir, c.task);
+    let parts = tdir.join(RESUME_DIR).join("parts");
+    let open_neighbours: Vec<CellKey> = (-1..=1i64)
+        .flat_map(|dx| (-1..=1i64).map(move |dy| (cell.0 + dx, cell.1 + dy)))
+        .filter(|&n| n != cell && later(n))
+        .collect();
+    collector.handle(ToWriter::Released(vec![CellRelease {
+        cell,
+        has_core: true,
+        open_neighbours,
+    }]))?;
+    for t in &c.tiles {
+        let meta = TileMeta {
+            name: t.name.clone(),
+            n_core: t.n_core,
+            buffer_points: t.buffer_points,
+            report: t.report.clone(),
+            split_root: t.split_root.clone(),
+            buffer_thinned: t.buffer_thinned,
+            cell,
+            reused: false,
+            final_files: None,
+        };
+        let output = match &t.result {
+            TileResult::Written { files } => TileOutput::Link(
+                files
+                    .iter()
+                    .map(|f| (tdir.join(f), f.clone()))
+                    .collect::<Vec<(PathBuf, String)>>(),
+            ),
+            TileResult::Deferred { points } => {
+                let [raw, table, summary] = part_files(&parts, &t.name);
+                let bytes = std::fs::read(&summary).map_err(|e| Error::io(&summary, e))?;
+                let s = BorderSummary::from_bytes(&bytes, &summary.display().to_string())?;
+                let d = DeferredTile::from_parts(t.name.clone(), raw, table, *points);
+                TileOutput::Deferred(d, Box::new(s))
+            }
+        };
+        collector.handle(ToWriter::Tile(Box::new(Processed { meta, output })))?;
+    }
+    for f in &c.failed {
+        collector.handle(ToWriter::Failed {
+            failed: f.failed.clone(),
+            split_root: f.split_root.clone(),
+            buffer_thinned: f.buffer_thinned,
+            cell,
+            reused: false,
+        })?;
+    }
+    collector.handle(ToWriter::CellDone {
+        cell,
+        leaves: c.tiles.len(),
+        reused: false,
+    })
+}
