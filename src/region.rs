@@ -174,7 +174,11 @@ impl RegionPlan {
     /// `iy`, estimated points, task) and `config.toml` (`settings`: every effective setting,
     /// which the tasks and the stitch run with) into `dir` (created if missing). Each file is
     /// written whole and renamed into place; an existing plan is never replaced.
-    pub fn write(&self, dir: &Path, settings: &std::collections::BTreeMap<String, String>) -> Result<()> {
+    pub fn write(
+        &self,
+        dir: &Path,
+        settings: &std::collections::BTreeMap<String, String>,
+    ) -> Result<()> {
         std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
         let json = dir.join("plan.json");
         if json.exists() {

@@ -197,7 +197,10 @@ fn changed_input_or_setting_is_refused_and_restart_starts_over() {
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
     assert!(stderr(&o).contains("is gone"), "{}", stderr(&o));
     // The same bytes, touched: modified since.
-    let f = std::fs::File::options().append(true).open(&inputs[1]).unwrap();
+    let f = std::fs::File::options()
+        .append(true)
+        .open(&inputs[1])
+        .unwrap();
     f.set_modified(std::time::SystemTime::now() + Duration::from_secs(5))
         .unwrap();
     drop(f);
@@ -205,7 +208,11 @@ fn changed_input_or_setting_is_refused_and_restart_starts_over() {
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
     assert!(stderr(&o).contains("modified since"), "{}", stderr(&o));
     assert!(stderr(&o).contains("--restart"), "{}", stderr(&o));
-    assert_eq!(journal_lines(&out), lines, "a refused run changed the journal");
+    assert_eq!(
+        journal_lines(&out),
+        lines,
+        "a refused run changed the journal"
+    );
 
     let o = run_cmd(&out, &inputs, &["--restart"]).output().unwrap();
     assert!(o.status.success(), "{}", stderr(&o));

@@ -13,7 +13,12 @@ pub fn run(inputs: &[PathBuf], out: &Path, opts: &RunOpts, quiet: bool) -> anyho
 
 /// Runs one task of the region plan in `plan` (index from `task` or the job-array variables).
 /// Its settings are the plan's: `--set`, `--config` and the setting flags are refused.
-pub fn run_task(plan: &Path, task: Option<usize>, opts: &RunOpts, quiet: bool) -> anyhow::Result<()> {
+pub fn run_task(
+    plan: &Path,
+    task: Option<usize>,
+    opts: &RunOpts,
+    quiet: bool,
+) -> anyhow::Result<()> {
     if !opts.overrides().is_empty() || opts.cfg.config.is_some() {
         return Err(tessera::Error::Config(format!(
             "run --plan: a task runs with the plan's settings ({}); change them when planning",
@@ -43,7 +48,10 @@ pub fn run_task(plan: &Path, task: Option<usize>, opts: &RunOpts, quiet: bool) -
             s.peak_rss_mb
         );
         if s.is_incomplete() {
-            tracing::warn!("task {index}: {} tiles failed (listed in its summary)", s.failed_tiles.len());
+            tracing::warn!(
+                "task {index}: {} tiles failed (listed in its summary)",
+                s.failed_tiles.len()
+            );
         }
     }
     Ok(())

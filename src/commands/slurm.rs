@@ -93,16 +93,15 @@ pub fn slurm(dir: &Path, opts: &SlurmOpts) -> anyhow::Result<()> {
         dir = dir.display(),
         out = log("stitch.log"),
     );
-    let submit = format!(
-        "#!/bin/bash\n\
+    let submit = "#!/bin/bash\n\
          # Submits the task array, then the stitch job to run after every task succeeded.\n\
          set -euo pipefail\n\
          here=\"$(cd \"$(dirname \"$0\")\" && pwd)\"\n\
          tasks=$(sbatch --parsable \"$here/tasks.sbatch\")\n\
-         tasks=${{tasks%%;*}}\n\
+         tasks=${tasks%%;*}\n\
          stitch=$(sbatch --parsable --dependency=afterok:$tasks \"$here/stitch.sbatch\")\n\
-         echo \"$tasks ${{stitch%%;*}}\"\n"
-    );
+         echo \"$tasks ${stitch%%;*}\"\n"
+        .to_string();
     for (name, body) in [
         ("tasks.sbatch", tasks),
         ("stitch.sbatch", stitch),

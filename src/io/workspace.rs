@@ -534,8 +534,17 @@ impl OutputDir {
         &self.committed
     }
 
-    /// Writes the run summary (the last file) and marks the run finished.
+    /// Writes the run summary (the last file) and marks the run finished; the resume
+    /// directory goes (nothing is left to resume).
     pub fn finish(mut self, summary: &[u8]) -> Result<()> {
+        self.write_summary(summary)?;
+        if let Err(e) = self.clear_resume_dir() {
+            tracing::warn!("{e}");
+        }
+        Ok(())
+    }
+
+    fn write_summary(&mut self, summary: &[u8]) -> Result<()> {
         let staged = self.stage().join(SUMMARY);
         std::fs::write(&staged, summary).map_err(|e| Error::io(&staged, e))?;
         self.commit(&[(staged, SUMMARY.to_string())])?;
@@ -545,10 +554,6 @@ impl OutputDir {
             .and_then(|_| journal.sync_all())
             .map_err(|e| Error::io(&jpath, e))?;
         self.finished = true;
-        // The run is complete: nothing is left to resume.
-        if let Err(e) = self.clear_resume_dir() {
-            tracing::warn!("{e}");
-        }
         Ok(())
     }
 }
@@ -557,16 +562,7 @@ impl OutputDir {
     /// Like [`OutputDir::finish`], but the resume directory stays: a task of a distributed
     /// run leaves its journal (deferred tiles, border summaries) for `tessera stitch`.
     pub fn finish_keeping_journal(mut self, summary: &[u8]) -> Result<()> {
-        let staged = self.stage().join(SUMMARY);
-        std::fs::write(&staged, summary).map_err(|e| Error::io(&staged, e))?;
-        self.commit(&[(staged, SUMMARY.to_string())])?;
-        let jpath = self.dir.join(JOURNAL);
-        let journal = self.start_writing()?;
-        writeln!(journal, "done")
-            .and_then(|_| journal.sync_all())
-            .map_err(|e| Error::io(&jpath, e))?;
-        self.finished = true;
-        Ok(())
+        self.write_summary(summary)
     }
 
     /// Adds existing files (another run's, e.g. a task's tiles) under `name`s by hard link

@@ -327,14 +327,16 @@ pub fn read_log(path: &Path, parts: PathBuf) -> Result<ResumeState> {
             Ok(e) => e,
             // The last line may be cut short by the crash; anything else is damage.
             Err(_) if i + 1 == lines.len() => break,
-            Err(e) => return Err(Error::OutputDir {
-                path: path.to_path_buf(),
-                reason: format!(
+            Err(e) => {
+                return Err(Error::OutputDir {
+                    path: path.to_path_buf(),
+                    reason: format!(
                     "line {} of the resume journal is damaged ({e}); pass --restart to start over",
                     i + 1
                 ),
-                usage: false,
-            }),
+                    usage: false,
+                })
+            }
         };
         match entry {
             Entry::Cell {

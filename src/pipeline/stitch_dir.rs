@@ -99,7 +99,9 @@ pub fn stitch_plan_dir(dir: &Path, overwrite: bool) -> Result<Summary> {
     let keys: Vec<CellKey> = cells.keys().copied().collect();
     for &cell in &keys {
         let c = &cells[&cell];
-        feed_cell(&mut collector, dir, cell, c, |n| n > cell && cells.contains_key(&n))?;
+        feed_cell(&mut collector, dir, cell, c, |n| {
+            n > cell && cells.contains_key(&n)
+        })?;
     }
     collector.finish()?;
     let Collector {

@@ -68,9 +68,11 @@ pub fn task_from_env() -> Result<Option<usize>> {
         "AWS_BATCH_JOB_ARRAY_INDEX",
     ] {
         if let Ok(v) = std::env::var(var) {
-            return v.trim().parse().map(Some).map_err(|_| {
-                Error::Config(format!("{var}={v:?} is not a task index"))
-            });
+            return v
+                .trim()
+                .parse()
+                .map(Some)
+                .map_err(|_| Error::Config(format!("{var}={v:?} is not a task index")));
         }
     }
     Ok(None)
@@ -96,7 +98,13 @@ impl TaskScope {
             if n == 0 {
                 continue;
             }
-            let bad = || Error::Config(format!("{}: line {} is not `ix iy points task`", path.display(), n + 1));
+            let bad = || {
+                Error::Config(format!(
+                    "{}: line {} is not `ix iy points task`",
+                    path.display(),
+                    n + 1
+                ))
+            };
             let v: Vec<&str> = line.split('\t').collect();
             if v.len() != 4 {
                 return Err(bad());
