@@ -149,7 +149,10 @@ fn failed_tile_is_listed_and_the_rest_is_written() {
         args.push("--keep-going");
         let o = run(&input, &strict, &args);
         assert_eq!(o.status.code(), Some(3), "{name}: {}", stderr(&o));
-        assert_eq!(summary(&strict)["tiles_reused"].as_u64().unwrap(), journaled);
+        assert_eq!(
+            summary(&strict)["tiles_reused"].as_u64().unwrap(),
+            journaled
+        );
 
         let out = d.path().join(name);
         let o = run(&input, &out, &args);
@@ -198,7 +201,10 @@ fn failed_tile_is_listed_and_the_rest_is_written() {
                 .map(|t| std::fs::read(t).unwrap())
                 .collect()
         };
-        assert!(bytes(&strict) == bytes(&out), "{name}: resumed tiles differ");
+        assert!(
+            bytes(&strict) == bytes(&out),
+            "{name}: resumed tiles differ"
+        );
         assert_eq!(
             common::tiles_in(&out).len(),
             s["tiles"].as_u64().unwrap() as usize
