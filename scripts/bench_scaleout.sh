@@ -7,12 +7,12 @@
 #   re-processes those buffers); stitch wall time; peak RSS per task against the budget;
 # and checks that both outputs are byte-identical.
 #
-# Usage: scripts/bench_scaleout.sh [LENGTH_M=2400]   (2400 m of street ≈ 50 M points)
+# Usage: scripts/bench_scaleout.sh [LENGTH_M=2450]   (2450 m of street ≈ 51 M points)
 # BENCH_DIR (default /tmp/tessera-bench-scaleout) holds the scene and outputs (~1.5 GB); it is
 # removed and recreated.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-LENGTH=${1:-2400}
+LENGTH=${1:-2450}
 W=${BENCH_DIR:-/tmp/tessera-bench-scaleout}
 rm -rf "$W"; mkdir -p "$W"
 cargo build --release -q

@@ -34,7 +34,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 
 /// Settings that do not change what a run writes: a resumed run may differ in them.
-const NOT_IN_FINGERPRINT: &[&str] = &[
+pub const NOT_IN_FINGERPRINT: &[&str] = &[
     "output.overwrite",
     "output.restart",
     "pipeline.keep_going",

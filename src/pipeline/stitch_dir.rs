@@ -2,7 +2,7 @@
 //! same tiles, byte for byte, as one `tessera run` of the region.
 //!
 //! Every task's journal lists its finished cells. The cells are fed to the writer of a run
-//! (the same [`Collector`] and stitcher) in (ix, iy) order, each announced with its later
+//! (the same writer, `Collector`, and stitcher) in (ix, iy) order, each announced with its later
 //! neighbours as still open — so the stitcher's frontier is about two grid columns, whatever
 //! the region's size — then its tiles with their border summaries, then its completion.
 //! Global ids are defined by point ordinals, not by order, so they are those of a single run.
