@@ -11,17 +11,16 @@
 //! summary is written; until then a stitch that fails or is killed can simply be run again
 //! (with `--overwrite`).
 
-use super::journal::{part_files, read_log, TileResult};
+use super::journal::{read_log, TileResult};
 use super::task::{task_dir, PlanFile};
 use super::writer::{Collector, Processed, TileMeta, TileOutput, ToWriter};
 use super::RunPlan;
 use crate::config::Config;
 use crate::error::{Error, Result};
-use crate::io::output::DeferredTile;
 use crate::io::workspace::{remove_run_dir, OutputDir, RESUME_DIR, SUMMARY};
 use crate::model::CellKey;
 use crate::report::{peak_rss_mb, Summary};
-use crate::stitch::{BorderSummary, CellRelease};
+use crate::stitch::CellRelease;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -169,17 +168,7 @@ fn feed_cell(
         open_neighbours,
     }]))?;
     for t in &c.tiles {
-        let meta = TileMeta {
-            name: t.name.clone(),
-            n_core: t.n_core,
-            buffer_points: t.buffer_points,
-            report: t.report.clone(),
-            split_root: t.split_root.clone(),
-            buffer_thinned: t.buffer_thinned,
-            cell,
-            reused: false,
-            final_files: None,
-        };
+        let meta = TileMeta::from_entry(t, cell, false, None);
         let output = match &t.result {
             TileResult::Written { files } => TileOutput::Link(
                 files
@@ -187,13 +176,7 @@ fn feed_cell(
                     .map(|f| (tdir.join(f), f.clone()))
                     .collect::<Vec<(PathBuf, String)>>(),
             ),
-            TileResult::Deferred { points } => {
-                let [raw, table, summary] = part_files(&parts, &t.name);
-                let bytes = std::fs::read(&summary).map_err(|e| Error::io(&summary, e))?;
-                let s = BorderSummary::from_bytes(&bytes, &summary.display().to_string())?;
-                let d = DeferredTile::from_parts(t.name.clone(), raw, table, *points);
-                TileOutput::Deferred(d, Box::new(s))
-            }
+            TileResult::Deferred { points } => TileOutput::from_parts(&parts, &t.name, *points)?,
         };
         collector.handle(ToWriter::Tile(Box::new(Processed { meta, output })))?;
     }

@@ -8,7 +8,7 @@ use super::plan::StitchPlan;
 use super::writer::{Processed, TileMeta, TileOutput, ToWriter};
 use crate::budget::BudgetPlan;
 use crate::error::{Error, Result};
-use crate::io::output::{segment_table_tsv, DeferredTile, TileSegments};
+use crate::io::output::{segment_table_tsv, TileSegments};
 use crate::io::TileWriter;
 use crate::model::{CellKey, RecordLayout, Tile};
 use crate::report::FailedTile;
@@ -165,26 +165,12 @@ impl WorkerRole<'_> {
             .resume
             .ok_or_else(|| Error::Internal("replay without a resume journal".into()))?;
         for t in tiles {
-            let meta = TileMeta {
-                name: t.name.clone(),
-                n_core: t.n_core,
-                buffer_points: t.buffer_points,
-                report: t.report.clone(),
-                split_root: t.split_root.clone(),
-                buffer_thinned: t.buffer_thinned,
-                cell,
-                reused: true,
-                final_files: resume.finals.get(&t.name).cloned(),
-            };
+            let final_files = resume.finals.get(&t.name).cloned();
+            let meta = TileMeta::from_entry(t, cell, true, final_files);
             let output = match &t.result {
                 TileResult::Written { files } => TileOutput::Reused(files.clone()),
                 TileResult::Deferred { points } => {
-                    let [raw, table, summary] = part_files(&resume.parts, &t.name);
-                    let bytes = std::fs::read(&summary).map_err(|e| Error::io(&summary, e))?;
-                    let what = summary.display().to_string();
-                    let summary = BorderSummary::from_bytes(&bytes, &what)?;
-                    let d = DeferredTile::from_parts(t.name.clone(), raw, table, *points);
-                    TileOutput::Deferred(d, Box::new(summary))
+                    TileOutput::from_parts(&resume.parts, &t.name, *points)?
                 }
             };
             if res_tx

@@ -36,6 +36,26 @@ pub(super) struct TileMeta {
 }
 
 impl TileMeta {
+    /// The books of a tile its journal recorded (a resumed run's, or a task's for the stitch).
+    pub fn from_entry(
+        t: &TileEntry,
+        cell: CellKey,
+        reused: bool,
+        final_files: Option<Vec<String>>,
+    ) -> TileMeta {
+        TileMeta {
+            name: t.name.clone(),
+            n_core: t.n_core,
+            buffer_points: t.buffer_points,
+            report: t.report.clone(),
+            split_root: t.split_root.clone(),
+            buffer_thinned: t.buffer_thinned,
+            cell,
+            reused,
+            final_files,
+        }
+    }
+
     fn entry(&self, result: TileResult) -> TileEntry {
         TileEntry {
             name: self.name.clone(),
@@ -60,6 +80,18 @@ pub(super) enum TileOutput {
     /// Written by a task of a distributed run: (its path, its name in the output), linked
     /// into place by `tessera stitch`.
     Link(Vec<(std::path::PathBuf, String)>),
+}
+
+impl TileOutput {
+    /// A deferred tile a journal recorded: its records and table in `parts`, its border
+    /// summary read back from there.
+    pub fn from_parts(parts: &Path, name: &str, points: usize) -> Result<TileOutput> {
+        let [raw, table, summary] = super::journal::part_files(parts, name);
+        let bytes = std::fs::read(&summary).map_err(|e| Error::io(&summary, e))?;
+        let s = BorderSummary::from_bytes(&bytes, &summary.display().to_string())?;
+        let d = DeferredTile::from_parts(name.to_string(), raw, table, points);
+        Ok(TileOutput::Deferred(d, Box::new(s)))
+    }
 }
 
 /// A processed tile.
