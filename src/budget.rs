@@ -173,6 +173,12 @@ impl BudgetPlan {
     /// thinned buffers are mostly near points) and their tile bytes for every point; 25 %
     /// slack on both.
     pub fn fits(&self, n_core: u64, n_buf: u64, n_near: u64) -> bool {
+        self.tile_bytes_needed(n_core, n_buf, n_near) <= self.tile_bytes
+    }
+
+    /// Bytes a tile of `n_core` + `n_buf` points (`n_near` of them near) takes while processed,
+    /// as [`BudgetPlan::fits`] charges it.
+    pub fn tile_bytes_needed(&self, n_core: u64, n_buf: u64, n_near: u64) -> u64 {
         let n = n_core + n_buf;
         let stage = self
             .stages
@@ -186,7 +192,16 @@ impl BudgetPlan {
             })
             .max()
             .unwrap_or(0);
-        n * self.base_bytes_per_point as u64 + stage <= self.tile_bytes
+        n * self.base_bytes_per_point as u64 + stage
+    }
+
+    /// Memory tokens (shares of the tile memory, one per worker) a tile needs: 1 for a tile
+    /// that [`BudgetPlan::fits`], up to [`BudgetPlan::tiles_in_flight`] for one that runs
+    /// alone with the whole tile memory; None when even that is too little.
+    pub fn tokens_needed(&self, n_core: u64, n_buf: u64, n_near: u64) -> Option<usize> {
+        let need = self.tile_bytes_needed(n_core, n_buf, n_near);
+        let tokens = need.div_ceil(self.tile_bytes.max(1)).max(1);
+        (tokens <= self.tiles_in_flight as u64).then_some(tokens as usize)
     }
 
     /// Takes [`STITCH_SHARE`] of the tile memory for the stitcher's frontier and shrinks each

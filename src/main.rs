@@ -9,6 +9,10 @@ use std::process::ExitCode;
 use tessera::cli::Cli;
 use tessera::Error;
 
+/// Counts heap bytes per worker, so summary.json reports each stage's peak working memory.
+#[global_allocator]
+static ALLOC: tessera::sys::alloc::Counting = tessera::sys::alloc::Counting;
+
 fn main() -> ExitCode {
     let cli = match Cli::try_parse() {
         Ok(c) => c,
@@ -36,6 +40,7 @@ fn main() -> ExitCode {
         .with_target(false)
         .init();
     tessera::sys::tame_allocator();
+    tessera::sys::alloc::activate();
     match commands::dispatch(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

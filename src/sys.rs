@@ -58,3 +58,230 @@ pub fn release_mapped(map: &memmap2::Mmap, offset: usize, len: usize) {
     #[cfg(not(unix))]
     let _ = (map, offset, len);
 }
+
+/// Heap accounting by memory domain: a global allocator that counts live and peak heap bytes
+/// per domain. Each pipeline worker and its thread pool form one domain, so the heap a stage
+/// grows on one tile is measured even while other workers run (summary.json `stages.*`).
+///
+/// Installed by the `tessera` binary (`#[global_allocator]`); without it every figure reads
+/// zero and [`alloc::counting`] is false. The cost is two relaxed atomic operations per
+/// allocation.
+pub mod alloc {
+    use std::alloc::{GlobalAlloc, Layout, System};
+    use std::cell::Cell;
+    use std::sync::atomic::{AtomicBool, AtomicI64, Ordering};
+
+    /// Domains: 0 is every thread that was not given one.
+    pub const DOMAINS: usize = 65;
+
+    /// A domain's counters, on a cache line of their own (workers count concurrently).
+    #[repr(align(64))]
+    struct Counters {
+        live: AtomicI64,
+        peak: AtomicI64,
+    }
+
+    #[allow(clippy::declare_interior_mutable_const)]
+    const ZERO: Counters = Counters {
+        live: AtomicI64::new(0),
+        peak: AtomicI64::new(0),
+    };
+    static C: [Counters; DOMAINS] = [ZERO; DOMAINS];
+    static ACTIVE: AtomicBool = AtomicBool::new(false);
+
+    thread_local! {
+        static DOMAIN: Cell<usize> = const { Cell::new(0) };
+    }
+
+    #[inline]
+    fn domain() -> usize {
+        DOMAIN.try_with(Cell::get).unwrap_or(0)
+    }
+
+    #[inline]
+    fn grow(d: usize, by: usize) {
+        let now = C[d].live.fetch_add(by as i64, Ordering::Relaxed) + by as i64;
+        C[d].peak.fetch_max(now, Ordering::Relaxed);
+    }
+
+    #[inline]
+    fn shrink(d: usize, by: usize) {
+        C[d].live.fetch_sub(by as i64, Ordering::Relaxed);
+    }
+
+    /// The counting allocator (the system allocator underneath).
+    pub struct Counting;
+
+    // SAFETY: every call is forwarded unchanged to the system allocator; the counters are
+    // plain atomics and the thread-local read neither allocates nor panics (`try_with`).
+    unsafe impl GlobalAlloc for Counting {
+        unsafe fn alloc(&self, l: Layout) -> *mut u8 {
+            let p = System.alloc(l);
+            if !p.is_null() {
+                grow(domain(), l.size());
+            }
+            p
+        }
+        unsafe fn alloc_zeroed(&self, l: Layout) -> *mut u8 {
+            let p = System.alloc_zeroed(l);
+            if !p.is_null() {
+                grow(domain(), l.size());
+            }
+            p
+        }
+        unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
+            System.dealloc(p, l);
+            shrink(domain(), l.size());
+        }
+        unsafe fn realloc(&self, p: *mut u8, l: Layout, new: usize) -> *mut u8 {
+            let q = System.realloc(p, l, new);
+            if !q.is_null() {
+                let d = domain();
+                if new >= l.size() {
+                    grow(d, new - l.size());
+                } else {
+                    shrink(d, l.size() - new);
+                }
+            }
+            q
+        }
+    }
+
+    /// Marks the counting allocator as installed (the binary calls this at start).
+    pub fn activate() {
+        ACTIVE.store(true, Ordering::Relaxed);
+    }
+
+    /// Whether heap figures are measured (the counting allocator is installed).
+    pub fn counting() -> bool {
+        ACTIVE.load(Ordering::Relaxed)
+    }
+
+    /// Puts the calling thread's allocations in domain `d` (taken modulo [`DOMAINS`] − 1,
+    /// plus one: domain 0 stays the unassigned threads').
+    pub fn set_domain(d: usize) {
+        let _ = DOMAIN.try_with(|c| c.set(1 + d % (DOMAINS - 1)));
+    }
+
+    /// The calling thread's domain.
+    pub fn current_domain() -> usize {
+        domain()
+    }
+
+    /// Heap growth of one domain over a section of work: peak live bytes during the section
+    /// minus live bytes at its start. Memory allocated by one domain and freed by another
+    /// shifts both domains' live counts, but not the growth measured within a section.
+    pub struct Probe {
+        d: usize,
+        start: i64,
+    }
+
+    impl Probe {
+        /// Starts measuring domain `d` (as returned by [`current_domain`]).
+        pub fn start(d: usize) -> Probe {
+            let d = d.min(DOMAINS - 1);
+            let start = C[d].live.load(Ordering::Relaxed);
+            C[d].peak.store(start, Ordering::Relaxed);
+            Probe { d, start }
+        }
+
+        /// Peak growth since [`Probe::start`], bytes.
+        pub fn peak_growth(&self) -> u64 {
+            (C[self.d].peak.load(Ordering::Relaxed) - self.start).max(0) as u64
+        }
+    }
+}
+
+/// CPU time of the calling thread, seconds (Linux; elsewhere 0).
+pub fn thread_cpu_seconds() -> f64 {
+    #[cfg(target_os = "linux")]
+    {
+        let mut ts = libc::timespec {
+            tv_sec: 0,
+            tv_nsec: 0,
+        };
+        // SAFETY: writes only to the local passed.
+        if unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) } == 0 {
+            return ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9;
+        }
+        0.0
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        0.0
+    }
+}
+
+/// CPU time of a set of threads, seconds (per-thread CPU clocks), Linux; elsewhere 0.
+#[derive(Default)]
+pub struct ThreadClocks {
+    #[cfg(target_os = "linux")]
+    threads: std::sync::Mutex<Vec<libc::pthread_t>>,
+}
+
+impl ThreadClocks {
+    /// Adds the calling thread (call from the thread itself, e.g. a pool's start handler).
+    pub fn register_current(&self) {
+        #[cfg(target_os = "linux")]
+        {
+            // SAFETY: pthread_self has no preconditions.
+            let me = unsafe { libc::pthread_self() };
+            if let Ok(mut t) = self.threads.lock() {
+                t.push(me);
+            }
+        }
+    }
+
+    /// Number of threads registered.
+    pub fn len(&self) -> usize {
+        #[cfg(target_os = "linux")]
+        {
+            self.threads.lock().map(|t| t.len()).unwrap_or(0)
+        }
+        #[cfg(not(target_os = "linux"))]
+        {
+            0
+        }
+    }
+
+    /// True when no thread is registered.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Summed CPU time of the registered threads, seconds. The threads must be alive (a pool's
+    /// threads are, while the pool is).
+    pub fn cpu_seconds(&self) -> f64 {
+        #[cfg(target_os = "linux")]
+        {
+            let Ok(threads) = self.threads.lock() else {
+                return 0.0;
+            };
+            threads
+                .iter()
+                .map(|&t| {
+                    let mut clock: libc::clockid_t = 0;
+                    let mut ts = libc::timespec {
+                        tv_sec: 0,
+                        tv_nsec: 0,
+                    };
+                    // SAFETY: `t` is a live thread of this process (see above); both calls
+                    // write only to the locals passed.
+                    let ok = unsafe {
+                        libc::pthread_getcpuclockid(t, &mut clock) == 0
+                            && libc::clock_gettime(clock, &mut ts) == 0
+                    };
+                    if ok {
+                        ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9
+                    } else {
+                        0.0
+                    }
+                })
+                .sum()
+        }
+        #[cfg(not(target_os = "linux"))]
+        {
+            0.0
+        }
+    }
+}

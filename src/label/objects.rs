@@ -225,16 +225,14 @@ impl GroundGrid {
 }
 
 /// Symmetric 3×3 eigenvalues (descending) and the eigenvectors of the largest and the
-/// smallest, via nalgebra.
+/// smallest ([`crate::geom::sym3_eigen`]).
 fn eigen3(cov: [[f64; 3]; 3]) -> ([f64; 3], [f64; 3], [f64; 3]) {
-    let m = nalgebra::Matrix3::from_fn(|r, c| cov[r][c]);
-    let e = nalgebra::SymmetricEigen::new(m);
-    let mut idx = [0usize, 1, 2];
-    idx.sort_by(|&a, &b| e.eigenvalues[b].total_cmp(&e.eigenvalues[a]));
-    let vals = idx.map(|i| e.eigenvalues[i].max(0.0));
-    let v = e.eigenvectors.column(idx[0]);
-    let w = e.eigenvectors.column(idx[2]);
-    (vals, [v[0], v[1], v[2]], [w[0], w[1], w[2]])
+    let (vals, vecs) = crate::geom::sym3_eigen(cov);
+    (
+        [vals[2], vals[1], vals[0]].map(|v| v.max(0.0)),
+        vecs[2],
+        vecs[0],
+    )
 }
 
 /// Shape of a set of points.

@@ -20,6 +20,7 @@ pub mod reader;
 pub mod stitch_dir;
 pub mod task;
 mod tiler;
+mod tokens;
 mod worker;
 mod writer;
 
@@ -152,6 +153,9 @@ fn run_scoped(
     summary.inputs = plan.set.files.len();
     summary.mcap = staged.reports.clone();
     summary.points_in = promised.points_in;
+    for t in summary.stages.values_mut() {
+        t.finish(summary.points_in);
+    }
     summary.memory_budget_mb = cfg.pipeline.memory_budget_mb;
     summary.point_format = plan.set.layout.format.to_u8().unwrap_or(255);
     summary.skipped_inputs = plan.skipped_inputs.clone();
@@ -244,7 +248,12 @@ fn execute(
         near_m: budget.near_m(),
         scope: scope.map(|s| &s.cells),
     };
+    let tokens = tokens::MemoryTokens::new(budget.tiles_in_flight);
     let worker = WorkerRole {
+        tokens: &tokens,
+        pool_threads: std::thread::available_parallelism()
+            .map(|n| n.get())
+            .unwrap_or(1),
         layout: &set.layout,
         stages,
         budget,
@@ -277,10 +286,10 @@ fn execute(
     let (read_s, tile_s) = std::thread::scope(|s| {
         let read = s.spawn(|| reader.run(chunk_tx, free_rx, &failure, &read_points));
         let tile = s.spawn(|| tiler.run(channels, &failure, (&max_open, &core_points)));
-        for _ in 0..budget.workers {
+        for w in 0..budget.workers {
             let (jobs, results) = (job_rx.clone(), res_tx.clone());
             let (worker, failure) = (&worker, &failure);
-            s.spawn(move || worker.run(jobs, results, failure));
+            s.spawn(move || worker.run(w, jobs, results, failure));
         }
         drop(res_tx);
         drop(job_rx);

@@ -5,6 +5,7 @@
 use super::failure::Failure;
 use super::journal::{part_files, FailedEntry, ResumeState, TileEntry, TileResult};
 use super::plan::StitchPlan;
+use super::tokens::MemoryTokens;
 use super::writer::{Processed, TileMeta, TileOutput, ToWriter};
 use crate::budget::BudgetPlan;
 use crate::error::{Error, Result};
@@ -12,8 +13,9 @@ use crate::io::output::{segment_table_tsv, TileSegments};
 use crate::io::TileWriter;
 use crate::model::{CellKey, RecordLayout, Tile};
 use crate::report::FailedTile;
-use crate::stages::{Stage, TileReport};
+use crate::stages::{Stage, StageWork, TileReport};
 use crate::stitch::BorderSummary;
+use crate::sys::{alloc, ThreadClocks};
 use crate::tiling::{load_tile, split_job, SplitParams, TileBuffers, TileJob};
 use crossbeam_channel::{Receiver, Sender};
 use std::path::Path;
@@ -38,6 +40,101 @@ pub(super) struct WorkerRole<'a> {
     /// The resume journal's parts directory: deferred tiles and their border summaries go
     /// there (flushed to the disk), and written tiles are flushed before they are committed.
     pub parts: Option<&'a Path>,
+    /// Shares of the tile memory (one per worker): a tile takes as many as it needs.
+    pub tokens: &'a MemoryTokens,
+    /// Threads of each worker's pool (the stages' parallel sections).
+    pub pool_threads: usize,
+}
+
+/// One worker's own thread pool: the stages' parallel sections run there, so their CPU time
+/// (per-thread clocks) and heap (the worker's allocation domain) are this worker's alone.
+struct WorkerPool {
+    pool: Option<rayon::ThreadPool>,
+    clocks: std::sync::Arc<ThreadClocks>,
+    domain: usize,
+}
+
+impl WorkerPool {
+    fn new(index: usize, threads: usize) -> Self {
+        alloc::set_domain(index);
+        let domain = alloc::current_domain();
+        let clocks = std::sync::Arc::new(ThreadClocks::default());
+        let c = clocks.clone();
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads.max(1))
+            .thread_name(move |i| format!("tessera-w{index}-{i}"))
+            .start_handler(move |_| {
+                alloc::set_domain(index);
+                c.register_current();
+            })
+            .build()
+            .ok();
+        if let Some(p) = &pool {
+            // Every thread has started (and registered its clock) once each ran a task.
+            p.broadcast(|_| ());
+        }
+        WorkerPool {
+            pool,
+            clocks,
+            domain,
+        }
+    }
+
+    /// Runs `f` in the pool (on this thread if the pool could not be built).
+    fn install<R: Send>(&self, f: impl FnOnce() -> R + Send) -> R {
+        match &self.pool {
+            Some(p) => p.install(f),
+            None => f(),
+        }
+    }
+
+    /// CPU seconds of the pool's threads (of this thread without a pool).
+    fn cpu_seconds(&self) -> f64 {
+        if self.pool.is_some() {
+            self.clocks.cpu_seconds()
+        } else {
+            crate::sys::thread_cpu_seconds()
+        }
+    }
+}
+
+/// The tokens a worker holds, and the tile buffers it keeps for reuse only while it holds
+/// them (buffers kept without a token would be memory no share accounts for).
+struct Held<'a> {
+    tokens: &'a MemoryTokens,
+    n: usize,
+    spare: TileBuffers,
+}
+
+impl Held<'_> {
+    /// Holds exactly `n` tokens, waiting for them in turn if more are needed.
+    fn hold(&mut self, n: usize) {
+        if self.n == n && !self.tokens.contended() {
+            return;
+        }
+        self.release();
+        self.tokens.take(n);
+        self.n = n;
+    }
+
+    /// Gives every token back and frees the spare buffers.
+    fn release(&mut self) {
+        self.spare = TileBuffers::default();
+        self.tokens.give(std::mem::take(&mut self.n));
+    }
+
+    /// After a tile: a worker waits for tokens, or this tile took several: give them back.
+    fn after_tile(&mut self) {
+        if self.n > 1 || self.tokens.contended() {
+            self.release();
+        }
+    }
+}
+
+impl Drop for Held<'_> {
+    fn drop(&mut self) {
+        self.release();
+    }
 }
 
 /// Runs one stage on a tile. A panic inside the stage (a bug, or a dependency's on data it
@@ -70,13 +167,36 @@ fn run_stage(
 impl WorkerRole<'_> {
     /// Processes jobs until the channel closes or the run fails. The worker's tile buffers
     /// are reused from tile to tile.
-    pub fn run(&self, jobs: Receiver<TileJob>, results: Sender<ToWriter>, failure: &Failure) {
-        let mut spare = TileBuffers::default();
-        for job in jobs.iter() {
+    pub fn run(
+        &self,
+        index: usize,
+        jobs: Receiver<TileJob>,
+        results: Sender<ToWriter>,
+        failure: &Failure,
+    ) {
+        let pool = WorkerPool::new(index, self.pool_threads);
+        let mut held = Held {
+            tokens: self.tokens,
+            n: 0,
+            spare: TileBuffers::default(),
+        };
+        loop {
+            // Idle: give the tokens back while waiting, so a big tile need not wait for us.
+            let job = match jobs.try_recv() {
+                Ok(j) => j,
+                Err(crossbeam_channel::TryRecvError::Empty) => {
+                    held.release();
+                    match jobs.recv() {
+                        Ok(j) => j,
+                        Err(_) => break,
+                    }
+                }
+                Err(crossbeam_channel::TryRecvError::Disconnected) => break,
+            };
             if failure.failed() {
                 break;
             }
-            if let Err(e) = self.work(job, &results, &mut spare) {
+            if let Err(e) = self.work(job, &results, &mut held, &pool) {
                 failure.set(e);
                 break;
             }
@@ -89,7 +209,8 @@ impl WorkerRole<'_> {
         &self,
         mut job: TileJob,
         res_tx: &Sender<ToWriter>,
-        spare: &mut TileBuffers,
+        held: &mut Held<'_>,
+        pool: &WorkerPool,
     ) -> Result<()> {
         let root = job.name.to_string();
         let cell = (job.id.ix, job.id.iy);
@@ -103,10 +224,12 @@ impl WorkerRole<'_> {
         let mut was_split = false;
         let mut thinned = 0;
         while let Some(job) = todo.pop() {
-            if !self.budget.fits(job.n_core, job.n_buf, job.n_near) {
+            let tokens = self.budget.tokens_needed(job.n_core, job.n_buf, job.n_near);
+            if self.should_split(&job, tokens) {
                 was_split = true;
-                // The split's buffers take the place of a loaded tile: free the spare one.
-                *spare = TileBuffers::default();
+                // The split's buffers take the place of a loaded tile: give back the tokens
+                // and the spare buffers.
+                held.release();
                 let (name, n_core, n_buf, n_near) = (job.name, job.n_core, job.n_buf, job.n_near);
                 let (children, dropped) =
                     match split_job(job, self.layout, self.spill_dir, self.split) {
@@ -127,11 +250,28 @@ impl WorkerRole<'_> {
                 todo.extend(children.into_iter().rev());
                 continue;
             }
-            let tile = load_tile(job, self.layout, std::mem::take(spare))?;
+            let tokens = tokens.unwrap_or(1);
+            if tokens > 1 {
+                tracing::debug!(
+                    "tile {}: {} core + {} buffer points run alone with {tokens} memory tokens",
+                    job.name,
+                    job.n_core,
+                    job.n_buf
+                );
+            }
+            held.hold(tokens);
+            let tile = load_tile(job, self.layout, std::mem::take(&mut held.spare))?;
             let (name, n_core) = (tile.name.to_string(), tile.n_core as u64);
             let split_root = was_split.then(|| root.clone());
             let dropped = std::mem::take(&mut thinned);
-            let p = match self.process(tile, spare, (split_root.clone(), dropped, cell)) {
+            let r = self.process(
+                tile,
+                &mut held.spare,
+                pool,
+                (split_root.clone(), dropped, cell),
+            );
+            held.after_tile();
+            let p = match r {
                 Ok(p) => p,
                 Err(e) => {
                     self.skip_or_fail(res_tx, (name, n_core, split_root), (dropped, cell), e)?;
@@ -150,6 +290,20 @@ impl WorkerRole<'_> {
             reused: false,
         });
         Ok(())
+    }
+
+    /// Whether a job is split rather than loaded. One that fits a worker's share is loaded.
+    /// One that needs several shares is split while its quadrants' cores stay at least twice
+    /// as wide as the widest stage context (narrower children mostly repeat each other's
+    /// context points: a 1.6 m core with a 5 m context processes 55 times its own points);
+    /// then it runs alone with the tokens it needs. One too big for the whole tile memory is
+    /// always split ([`split_job`] fails below `tiling.min_tile_size_m`).
+    fn should_split(&self, job: &TileJob, tokens: Option<usize>) -> bool {
+        match tokens {
+            Some(1) => false,
+            Some(_) => job.core.width() / 2.0 >= 2.0 * self.budget.near_m(),
+            None => true,
+        }
     }
 
     /// A cell the resume journal records as finished: its tiles' results and failures are
@@ -236,12 +390,26 @@ impl WorkerRole<'_> {
         &self,
         mut tile: Tile,
         spare: &mut TileBuffers,
+        pool: &WorkerPool,
         (split_root, buffer_thinned, cell): (Option<String>, u64, CellKey),
     ) -> Result<Processed> {
         let mut report = TileReport::default();
         for st in self.stages {
             let t = Instant::now();
-            run_stage(st.as_ref(), &mut tile, self.layout, &mut report)?;
+            let cpu = pool.cpu_seconds();
+            let probe = alloc::Probe::start(pool.domain);
+            pool.install(|| run_stage(st.as_ref(), &mut tile, self.layout, &mut report))?;
+            let n = tile.len() as u64;
+            let w = report
+                .work
+                .entry(st.name().to_string())
+                .or_insert_with(|| StageWork {
+                    points: n,
+                    ..StageWork::default()
+                });
+            w.tile_points = tile.len() as u64;
+            w.cpu_seconds = pool.cpu_seconds() - cpu;
+            w.peak_bytes = probe.peak_growth();
             report
                 .seconds
                 .insert(st.name().to_string(), t.elapsed().as_secs_f64());

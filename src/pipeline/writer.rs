@@ -389,6 +389,10 @@ impl<'a> Collector<'a> {
             for (k, v) in &meta.report.seconds {
                 *s.seconds.entry(format!("stage_{k}")).or_default() += v;
             }
+            for (k, w) in &meta.report.work {
+                let secs = meta.report.seconds.get(k).copied().unwrap_or(0.0);
+                s.stages.entry(k.clone()).or_default().add(w, secs);
+            }
         }
         s.points_out += meta.n_core;
         s.buffer_points_thinned += meta.buffer_thinned;

@@ -52,6 +52,9 @@ pub struct Summary {
     pub buffer_points_thinned: u64,
     /// Wall seconds per phase and summed worker seconds per stage.
     pub seconds: BTreeMap<String, f64>,
+    /// Per stage, over the tiles this run processed: points worked on, CPU time, peak
+    /// working memory.
+    pub stages: BTreeMap<String, StageTotals>,
     /// Peak resident set size (VmHWM), MiB.
     pub peak_rss_mb: f64,
     /// Configured memory budget, MiB.
@@ -88,6 +91,48 @@ pub struct Summary {
     /// Tiles this run processed (all of them, unless it resumed an interrupted run).
     #[serde(default)]
     pub tiles_recomputed: usize,
+}
+
+/// One stage's cost over a run (summary.json `stages`).
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct StageTotals {
+    /// Points the stage worked on, summed over tiles: a point in several tiles' contexts
+    /// counts once per tile.
+    pub points: u64,
+    /// Those points per input point (1.0: every point once; more: repeated context work).
+    pub points_per_input_point: f64,
+    /// Wall seconds of the workers in the stage, summed over tiles.
+    pub seconds: f64,
+    /// CPU seconds of the threads that ran it.
+    pub cpu_seconds: f64,
+    /// CPU microseconds per input point.
+    pub cpu_us_per_input_point: f64,
+    /// Largest peak heap growth during the stage on one tile, bytes (0: not measured).
+    pub peak_bytes: u64,
+    /// Largest peak heap growth per tile point (core + buffer) on a tile of at least 10,000
+    /// points, bytes (0: not measured).
+    pub bytes_per_point_peak: f64,
+}
+
+impl StageTotals {
+    /// Adds one tile's figures.
+    pub fn add(&mut self, w: &crate::stages::StageWork, seconds: f64) {
+        self.points += w.points;
+        self.seconds += seconds;
+        self.cpu_seconds += w.cpu_seconds;
+        self.peak_bytes = self.peak_bytes.max(w.peak_bytes);
+        if w.tile_points >= 10_000 {
+            let b = w.peak_bytes as f64 / w.tile_points as f64;
+            self.bytes_per_point_peak = self.bytes_per_point_peak.max(b);
+        }
+    }
+
+    /// Fills in the per-input-point figures.
+    pub fn finish(&mut self, points_in: u64) {
+        let n = points_in.max(1) as f64;
+        self.points_per_input_point = self.points as f64 / n;
+        self.cpu_us_per_input_point = self.cpu_seconds * 1e6 / n;
+    }
 }
 
 /// A tile a `keep_going` run left out, and why.

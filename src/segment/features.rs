@@ -1,7 +1,6 @@
 //! Per-point and per-region features: plane moments and least-squares planes (PCA), local
 //! normals and curvature, and colour (storage depth, vector median filter, CIELab).
 
-use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -126,15 +125,9 @@ impl Moments {
             };
             self.ss[k] * inv - m[a] * m[b]
         };
-        let cov = Matrix3::from_fn(c);
-        let e = SymmetricEigen::new(cov);
-        let mut ord = [0usize, 1, 2];
-        ord.sort_by(|&a, &b| e.eigenvalues[a].total_cmp(&e.eigenvalues[b]));
-        let vals = ord.map(|i| e.eigenvalues[i].max(0.0));
-        let vecs = ord.map(|i| {
-            let v: Vector3<f64> = e.eigenvectors.column(i).into();
-            [v[0], v[1], v[2]]
-        });
+        let cov: [[f64; 3]; 3] = std::array::from_fn(|a| std::array::from_fn(|b| c(a, b)));
+        let (vals, vecs) = crate::geom::sym3_eigen(cov);
+        let vals = vals.map(|v| v.max(0.0));
         let centroid = [
             m[0] + self.origin[0],
             m[1] + self.origin[1],

@@ -13,7 +13,7 @@ use crate::label::{
 };
 use crate::model::{RecordLayout, Tile};
 use crate::segment::features::normals;
-use crate::segment::neighbours::knn_surface;
+use crate::segment::neighbours::knn_grid2d;
 use crate::segment::{rgb_is_8bit, rgb_to_lab, LabFormula};
 use serde::Deserialize;
 use std::path::PathBuf;
@@ -161,16 +161,17 @@ impl Stage for LabelStage {
         Some(self.section.context_m)
     }
     fn bytes_per_point(&self) -> usize {
-        // Neighbour lists (index + distance, k of them), normals, colour, region and class
-        // arrays, the object voxel maps. Measured by `tests/stage_memory.rs` (counting
-        // allocator, k = 12): up to 348 B per context point including the per-tile arrays
-        // below (synthetic street, 1.0 M of a tile's 1.27 M points in the context).
-        8 * self.section.ground.k + 210
+        // Neighbour lists (index + distance, k of them, in fixed-width rows while searched),
+        // normals, colour, region and class arrays, the object voxel maps. Measured by
+        // `tests/stage_memory.rs` (counting allocator, k = 12): up to 218 B per context point
+        // including the per-tile arrays below (synthetic street, 1.0 M of a tile's 1.27 M
+        // points in the context; 348 B with the per-point lists of the kd-tree search).
+        8 * self.section.ground.k + 100
     }
     fn bytes_per_tile_point(&self) -> usize {
         // Flags, classes, heights above ground, voxel and object ids built for every tile
         // point (~25 B), with room for the ground height grid.
-        48
+        32
     }
     fn process(
         &self,
@@ -196,6 +197,7 @@ impl Stage for LabelStage {
             .collect();
         let in_zone: Vec<bool> = tile.xyz.iter().map(|p| zone.contains(p[0], p[1])).collect();
         let is_ground: Vec<bool> = classes.iter().map(|&c| c == 2).collect();
+        report.worked_on(self.name(), in_zone.iter().filter(|&&z| z).count());
 
         // Ground subclasses.
         let gidx: Vec<usize> = (0..n).filter(|&i| is_ground[i] && in_zone[i]).collect();
@@ -268,7 +270,7 @@ impl LabelStage {
             .collect();
         let gp = &self.section.ground;
         let t = std::time::Instant::now();
-        let nb = knn_surface(&pts, gp.k, gp.radius_m);
+        let nb = knn_grid2d(&pts, gp.k, gp.radius_m);
         times[0] = t.elapsed().as_secs_f64();
         let t = std::time::Instant::now();
         let nrm = normals(&pts, &nb, gp.radius_m);

@@ -18,4 +18,4 @@ pub mod stage;
 pub mod stats;
 
 pub use registry::{build_stages, validate_stages, REGISTRY};
-pub use stage::{parse_section, Attribute, Stage, StageSpec, TileReport};
+pub use stage::{parse_section, Attribute, Stage, StageSpec, StageWork, TileReport};

@@ -105,10 +105,12 @@ impl Stage for SegmentStage {
     }
     fn bytes_per_point(&self) -> usize {
         // Neighbour lists (u32 per neighbour, k of them), canonical order, normals, colour
-        // in two forms, labels and the growing queues: measured 146 MB peak for 195 k points
-        // with k = 20 in the scratch benchmark including the input; 8 B per neighbour plus
-        // ~200 B of per-point arrays is an honest upper estimate.
-        8 * self.section.params.k + 200
+        // in two forms, labels and the growing queues. Measured by `tests/stage_memory.rs`
+        // (counting allocator, k = 20): up to 234 B per context point (simulated drive; 137 B
+        // on the synthetic street); summary.json `stages.segment.bytes_per_point_peak` showed
+        // up to 333 B per tile point on the split leaves of the 10.9 M-point drive at 256 MiB,
+        // so 8 B per neighbour plus 140 B (+25 % slack: 375 B).
+        8 * self.section.params.k + 140
     }
     fn process(
         &self,
@@ -133,6 +135,7 @@ impl Stage for SegmentStage {
                 wanted && zone.contains(p[0], p[1])
             })
             .collect();
+        report.worked_on(self.name(), mask.iter().filter(|&&m| m).count());
         let rgb: Option<Vec<[u16; 3]>> = layout.rgb_offset().map(|o| {
             tile.records
                 .chunks_exact(rl)

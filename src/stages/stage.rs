@@ -15,6 +15,31 @@ pub struct TileReport {
     pub stats: BTreeMap<String, serde_json::Value>,
     /// Seconds spent per stage.
     pub seconds: BTreeMap<String, f64>,
+    /// Per stage: points worked on, CPU time and peak working memory.
+    #[serde(default)]
+    pub work: BTreeMap<String, StageWork>,
+}
+
+/// What one stage cost on one tile.
+#[derive(Debug, Default, Clone, Copy, Serialize, serde::Deserialize)]
+pub struct StageWork {
+    /// Points the stage worked on (its context points, or the points it selects there);
+    /// the whole tile unless the stage says otherwise ([`TileReport::worked_on`]).
+    pub points: u64,
+    /// Points of the tile (core + buffer).
+    pub tile_points: u64,
+    /// CPU seconds of the threads that ran it.
+    pub cpu_seconds: f64,
+    /// Peak heap growth during the stage, bytes (0 when not measured).
+    pub peak_bytes: u64,
+}
+
+impl TileReport {
+    /// Records how many points `stage` worked on (called by the stage; the worker fills in
+    /// the rest of [`StageWork`]).
+    pub fn worked_on(&mut self, stage: &str, points: usize) {
+        self.work.entry(stage.to_string()).or_default().points = points as u64;
+    }
 }
 
 /// One processing step run by the workers on every complete tile (core + buffer points).

@@ -1,0 +1,81 @@
+#!/usr/bin/env bash
+# Per-point cost of the stages (issue 21): on the demo street scene and on the simulated drive
+# of scripts/bench_mcap.sh, each processed
+#   a. as a pass-through (stages.run = ["stats"]: read LAZ -> tile -> write LAZ, the codec
+#      floor), and
+#   b. end to end with the default stages (ground + segment + label + stitching),
+# alternated in the same session, RUNS times each; prints the medians, the throughput ratio
+# end-to-end / pass-through, and per stage the CPU microseconds per input point and the points
+# worked on per input point (summary.json `stages`). With OLD_BIN=path (e.g. a build of an
+# earlier commit) the end-to-end runs of that binary are timed too, alternated, for a
+# before/after ratio in the same session. Then the drive once at --memory-budget 256 with two
+# workers (wall, peak RSS from /usr/bin/time -v and VmHWM).
+# Usage: scripts/bench_stages.sh [RUNS=3] [DRIVE_LENGTH_M=310]
+set -euo pipefail
+cd "$(dirname "$0")/.."
+RUNS=${1:-3}; LEN=${2:-310}
+W=${BENCH_DIR:-/tmp/tessera-bench-stages}
+rm -rf "$W"; mkdir -p "$W"
+cargo build --release -q
+BIN="${CARGO_TARGET_DIR:-target}/release/tessera"
+OLD_BIN=${OLD_BIN:-}
+
+echo "== inputs"
+"$BIN" -q demo --out "$W/demo" > /dev/null
+"$BIN" -q synth --mcap --out "$W/drive" --length-m "$LEN" --rings 32 --columns 1024
+# The drive as LAZ (decoded and georeferenced once), so both runs read the same LAZ.
+"$BIN" -q run "$W/drive/drive.mcap" --out "$W/drive_laz" --set 'stages.run=["stats"]' --set tiling.tile_size_m=1000
+DEMO_SET=(--set "label.samples=\"$W/demo/samples.json\"")
+
+# run NAME BIN OUT INPUT ARGS... -> appends "wall peak_rss_mib" to $W/NAME.txt
+run() {
+  local name=$1 bin=$2 out=$3 input=$4; shift 4
+  rm -rf "$out"; sync
+  local t
+  t=$( { /usr/bin/time -f "%e %M" "$bin" -q run "$input" --out "$out" "$@" > /dev/null; } 2>&1 | tail -1)
+  echo "$t" >> "$W/$name.txt"
+  echo "  $name: ${t% *} s, max RSS $(( ${t#* } / 1024 )) MiB"
+}
+
+for i in $(seq "$RUNS"); do
+  echo "== round $i"
+  run demo_pt "$BIN" "$W/o_demo_pt" "$W/demo/scene" --set 'stages.run=["stats"]'
+  run demo_e2e "$BIN" "$W/o_demo_e2e" "$W/demo/scene" "${DEMO_SET[@]}"
+  [ -n "$OLD_BIN" ] && run demo_old "$OLD_BIN" "$W/o_demo_old" "$W/demo/scene" "${DEMO_SET[@]}"
+  run drive_pt "$BIN" "$W/o_drive_pt" "$W/drive_laz" --set 'stages.run=["stats"]'
+  run drive_e2e "$BIN" "$W/o_drive_e2e" "$W/drive_laz"
+  [ -n "$OLD_BIN" ] && run drive_old "$OLD_BIN" "$W/o_drive_old" "$W/drive_laz"
+done
+
+echo "== drive at --memory-budget 256, 2 workers"
+run drive_256 "$BIN" "$W/o_drive_256" "$W/drive_laz" --memory-budget 256 --threads 2
+
+python3 - "$W" "${OLD_BIN:+old}" <<'PY'
+import json, os, statistics as st, sys
+w, old = sys.argv[1], sys.argv[2] if len(sys.argv) > 2 else ""
+def med(name):
+    rows = [l.split() for l in open(f"{w}/{name}.txt")]
+    return st.median(float(r[0]) for r in rows), max(int(r[1]) for r in rows) / 1024
+for scene in ("demo", "drive"):
+    s = json.load(open(f"{w}/o_{scene}_e2e/summary.json"))
+    n = s["points_in"]
+    pt, pt_rss = med(f"{scene}_pt"); e2e, e2e_rss = med(f"{scene}_e2e")
+    print(f"{scene}: {n} points")
+    print(f"  pass-through: median {pt:.2f} s = {n / pt / 1e6:.2f} M points/s (max RSS {pt_rss:.0f} MiB)")
+    print(f"  end to end:   median {e2e:.2f} s = {n / e2e / 1e6:.2f} M points/s (max RSS {e2e_rss:.0f} MiB)")
+    print(f"  throughput ratio end-to-end / pass-through: {pt / e2e:.3f}")
+    if old:
+        o, o_rss = med(f"{scene}_old")
+        print(f"  old binary end to end: median {o:.2f} s (max RSS {o_rss:.0f} MiB); ratio old/pass-through {pt / o:.3f}; speed-up {o / e2e:.2f}x")
+    for k, v in s["stages"].items():
+        if k == "stats":
+            continue
+        print(f"  stage {k:8s} {v['cpu_us_per_input_point']:6.2f} CPU-us per input point, "
+              f"{v['points_per_input_point']:.2f} points worked on per input point, "
+              f"peak {v['bytes_per_point_peak']:.0f} B per tile point")
+    print(f"  tiles {s['tiles']}, split grid tiles {s['tiles_split']}")
+s = json.load(open(f"{w}/o_drive_256/summary.json"))
+t, rss = med("drive_256")
+print(f"drive at 256 MiB, 2 workers: {t:.1f} s wall, max RSS {rss:.0f} MiB (VmHWM {s['peak_rss_mb']:.0f} MiB), "
+      f"{s['tiles']} tiles, {s['tiles_split']} split")
+PY
