@@ -7,9 +7,9 @@
 # alternated in the same session, RUNS times each; prints the medians, the throughput ratio
 # end-to-end / pass-through, and per stage the CPU microseconds per input point and the points
 # worked on per input point (summary.json `stages`). With OLD_BIN=path (e.g. a build of an
-# earlier commit) the end-to-end runs of that binary are timed too, alternated, for a
-# before/after ratio in the same session. Then the drive once at --memory-budget 256 with two
-# workers (wall, peak RSS from /usr/bin/time -v and VmHWM).
+# earlier commit) that binary's end-to-end demo runs are timed too, alternated, for a
+# before/after ratio in the same session. With DRIVE_256=1, then the drive once at
+# --memory-budget 256 with two workers (wall, peak RSS from /usr/bin/time -v and VmHWM).
 # Usage: scripts/bench_stages.sh [RUNS=3] [DRIVE_LENGTH_M=310]
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -41,14 +41,15 @@ for i in $(seq "$RUNS"); do
   echo "== round $i"
   run demo_pt "$BIN" "$W/o_demo_pt" "$W/demo/scene" --set 'stages.run=["stats"]'
   run demo_e2e "$BIN" "$W/o_demo_e2e" "$W/demo/scene" "${DEMO_SET[@]}"
-  [ -n "$OLD_BIN" ] && run demo_old "$OLD_BIN" "$W/o_demo_old" "$W/demo/scene" "${DEMO_SET[@]}"
+  if [ -n "$OLD_BIN" ]; then run demo_old "$OLD_BIN" "$W/o_demo_old" "$W/demo/scene" "${DEMO_SET[@]}"; fi
   run drive_pt "$BIN" "$W/o_drive_pt" "$W/drive_laz" --set 'stages.run=["stats"]'
   run drive_e2e "$BIN" "$W/o_drive_e2e" "$W/drive_laz"
-  [ -n "$OLD_BIN" ] && run drive_old "$OLD_BIN" "$W/o_drive_old" "$W/drive_laz"
 done
 
-echo "== drive at --memory-budget 256, 2 workers"
-run drive_256 "$BIN" "$W/o_drive_256" "$W/drive_laz" --memory-budget 256 --threads 2
+if [ "${DRIVE_256:-0}" = 1 ]; then
+  echo "== drive at --memory-budget 256, 2 workers"
+  run drive_256 "$BIN" "$W/o_drive_256" "$W/drive_laz" --memory-budget 256 --threads 2
+fi
 
 python3 - "$W" "${OLD_BIN:+old}" <<'PY'
 import json, os, statistics as st, sys
@@ -64,7 +65,7 @@ for scene in ("demo", "drive"):
     print(f"  pass-through: median {pt:.2f} s = {n / pt / 1e6:.2f} M points/s (max RSS {pt_rss:.0f} MiB)")
     print(f"  end to end:   median {e2e:.2f} s = {n / e2e / 1e6:.2f} M points/s (max RSS {e2e_rss:.0f} MiB)")
     print(f"  throughput ratio end-to-end / pass-through: {pt / e2e:.3f}")
-    if old:
+    if old and scene == "demo":
         o, o_rss = med(f"{scene}_old")
         print(f"  old binary end to end: median {o:.2f} s (max RSS {o_rss:.0f} MiB); ratio old/pass-through {pt / o:.3f}; speed-up {o / e2e:.2f}x")
     for k, v in s["stages"].items():
@@ -74,6 +75,8 @@ for scene in ("demo", "drive"):
               f"{v['points_per_input_point']:.2f} points worked on per input point, "
               f"peak {v['bytes_per_point_peak']:.0f} B per tile point")
     print(f"  tiles {s['tiles']}, split grid tiles {s['tiles_split']}")
+if not os.path.exists(f"{w}/o_drive_256/summary.json"):
+    sys.exit(0)
 s = json.load(open(f"{w}/o_drive_256/summary.json"))
 t, rss = med("drive_256")
 print(f"drive at 256 MiB, 2 workers: {t:.1f} s wall, max RSS {rss:.0f} MiB (VmHWM {s['peak_rss_mb']:.0f} MiB), "
