@@ -3,13 +3,8 @@
 
 use std::process::Command;
 
-fn max_rss_kb(stderr: &str) -> Option<f64> {
-    stderr
-        .lines()
-        .find(|l| l.contains("Maximum resident set size"))
-        .and_then(|l| l.split(':').nth(1))
-        .and_then(|v| v.trim().parse().ok())
-}
+mod common;
+use common::{max_rss_kb, timed};
 
 #[test]
 fn twenty_million_points_stay_under_256_mib() {
@@ -23,14 +18,7 @@ fn twenty_million_points_stay_under_256_mib() {
         .status()
         .unwrap();
     assert!(st.success());
-    let timed = std::path::Path::new("/usr/bin/time").exists();
-    let mut cmd = if timed {
-        let mut c = Command::new("/usr/bin/time");
-        c.arg("-v").arg(exe);
-        c
-    } else {
-        Command::new(exe)
-    };
+    let (mut cmd, timed) = timed(exe);
     let o = cmd
         .args([
             "-q",

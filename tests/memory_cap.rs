@@ -7,13 +7,8 @@
 
 use std::process::Command;
 
-fn max_rss_kb(stderr: &str) -> Option<f64> {
-    stderr
-        .lines()
-        .find(|l| l.contains("Maximum resident set size"))
-        .and_then(|l| l.split(':').nth(1))
-        .and_then(|v| v.trim().parse().ok())
-}
+mod common;
+use common::{max_rss_kb, timed};
 
 #[test]
 fn full_pipeline_with_two_workers_stays_under_256_mib() {
@@ -27,14 +22,7 @@ fn full_pipeline_with_two_workers_stays_under_256_mib() {
         .status()
         .unwrap();
     assert!(st.success());
-    let timed = std::path::Path::new("/usr/bin/time").exists();
-    let mut cmd = if timed {
-        let mut c = Command::new("/usr/bin/time");
-        c.arg("-v").arg(exe);
-        c
-    } else {
-        Command::new(exe)
-    };
+    let (mut cmd, timed) = timed(exe);
     let o = cmd
         .args([
             "-q",

@@ -207,3 +207,24 @@ pub fn kitti_is_ground(label: i32) -> bool {
 
 /// SemanticKITTI vegetation, excluded from scoring.
 pub const KITTI_VEGETATION: i32 = 15;
+
+/// A command running `exe` under `/usr/bin/time -v` when it is installed (its maximum resident
+/// set size then appears on stderr, see [`max_rss_kb`]); the flag says whether it is.
+pub fn timed(exe: &str) -> (std::process::Command, bool) {
+    if Path::new("/usr/bin/time").exists() {
+        let mut c = std::process::Command::new("/usr/bin/time");
+        c.arg("-v").arg(exe);
+        (c, true)
+    } else {
+        (std::process::Command::new(exe), false)
+    }
+}
+
+/// The maximum resident set size `/usr/bin/time -v` printed, KiB.
+pub fn max_rss_kb(stderr: &str) -> Option<f64> {
+    stderr
+        .lines()
+        .find(|l| l.contains("Maximum resident set size"))
+        .and_then(|l| l.split(':').nth(1))
+        .and_then(|v| v.trim().parse().ok())
+}
