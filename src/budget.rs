@@ -212,8 +212,10 @@ impl BudgetPlan {
     /// `bytes_per_tile_point` (≈ 500–600 with the segment stage) for a tile in flight, and the
     /// frontier held ~5–7 tiles in the runs measured (`scripts/bench_stitch.sh`, the
     /// metamorphic gate): ≤ 7 × 24 / 550 ≈ 0.3 of one tile's share, under 15 % of the tile
-    /// memory with two or more workers. The run reports the real peak (`stitch.
-    /// frontier_bytes_max` in summary.json).
+    /// memory with two or more workers. The share is a cap, not an estimate: summaries beyond
+    /// it wait in a spill file ([`crate::stitch::spill`]; one worker on a dense street holds
+    /// a grid column and more, 63 MB against a 16 MB share at 160 MiB). The run reports the
+    /// peak in memory and on disk (`stitch.frontier_bytes_max`, `stitch.spill_bytes_max`).
     pub fn reserve_stitch(&mut self) -> Result<()> {
         let all_tiles = self.tile_bytes * self.tiles_in_flight as u64;
         let reserve = (all_tiles as f64 * STITCH_SHARE) as u64;

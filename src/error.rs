@@ -158,4 +158,7 @@ pub enum StitchError {
     /// A segment id does not fit the output attribute.
     #[error("stitch: segment id {0} does not fit the 32-bit segment_id attribute")]
     IdOverflow(u64),
+    /// The frontier's spill file could not be written or read back.
+    #[error("stitch: frontier spill file: {0}")]
+    Spill(String),
 }

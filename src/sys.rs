@@ -1,4 +1,5 @@
-//! The one module with `unsafe`: process-level allocator settings and read-only file mappings.
+//! The one module with `unsafe`: process-level allocator settings, read-only file mappings,
+//! thread CPU clocks and hole punching in spill files.
 #![allow(unsafe_code)]
 
 /// Makes glibc's allocator return large buffers to the OS promptly.
@@ -58,6 +59,30 @@ pub fn release_mapped(map: &memmap2::Mmap, offset: usize, len: usize) {
     #[cfg(not(unix))]
     let _ = (map, offset, len);
 }
+
+/// Frees the file blocks of `len` bytes at `at` while the file keeps its length (the range
+/// then reads as zeros). Best effort: a file system without hole punching keeps the blocks
+/// until the file is truncated or removed.
+#[cfg(target_os = "linux")]
+pub fn punch_hole(f: &std::fs::File, at: u64, len: u64) {
+    use std::os::fd::AsRawFd;
+    let (Ok(at), Ok(len)) = (libc::off_t::try_from(at), libc::off_t::try_from(len)) else {
+        return;
+    };
+    // SAFETY: a plain system call on a descriptor `f` keeps open; no memory is shared.
+    unsafe {
+        libc::fallocate(
+            f.as_raw_fd(),
+            libc::FALLOC_FL_PUNCH_HOLE | libc::FALLOC_FL_KEEP_SIZE,
+            at,
+            len,
+        );
+    }
+}
+
+/// See the Linux version: elsewhere the blocks stay until the file is truncated or removed.
+#[cfg(not(target_os = "linux"))]
+pub fn punch_hole(_f: &std::fs::File, _at: u64, _len: u64) {}
 
 /// Heap accounting by memory domain: a global allocator that counts live and peak heap bytes
 /// per domain. Each pipeline worker and its thread pool form one domain, so the heap a stage

@@ -276,6 +276,7 @@ fn execute(
         Some(journal),
     );
     collector.keep_deferred = scope.is_some();
+    collector.spill_frontier_beyond(plan.budget.stitch_bytes);
     let channels = TilerChannels {
         chunk_rx,
         free_tx,

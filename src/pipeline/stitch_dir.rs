@@ -95,6 +95,7 @@ pub fn stitch_plan_dir(dir: &Path, overwrite: bool) -> Result<Summary> {
         None,
     );
     collector.keep_deferred = true;
+    collector.spill_frontier_beyond(run.budget.stitch_bytes);
     let keys: Vec<CellKey> = cells.keys().copied().collect();
     for &cell in &keys {
         let c = &cells[&cell];

@@ -177,6 +177,16 @@ impl<'a> Collector<'a> {
         }
     }
 
+    /// Keeps the stitcher's frontier in memory up to `cap_bytes` (the plan's reserve); the
+    /// oldest border summaries beyond it wait in a spill file in the run's staging directory.
+    pub fn spill_frontier_beyond(&mut self, cap_bytes: u64) {
+        let stage = self.out.stage().to_path_buf();
+        self.stitcher = self
+            .stitcher
+            .take()
+            .map(|st| st.spill_beyond(&stage, cap_bytes));
+    }
+
     /// Handles every message until all senders are gone, then finishes. After a failure,
     /// messages are only cleaned up (their temporary files removed).
     pub fn run(&mut self, results: Receiver<ToWriter>, failure: &Failure) {

@@ -1,8 +1,11 @@
 //! Fixed-size neighbourhood lists: the `k` nearest points within a radius, for every point.
 //!
-//! The lists are built once per call (Table 3-1 step 1, thesis §3.5.1) and stored flat
-//! (CSR layout: `offsets[i]..offsets[i + 1]` into `idx`), sorted by distance with ties broken
-//! by point index. Because the caller hands us the points already in a canonical order, the
+//! The lists are built once per call (Table 3-1 step 1, thesis §3.5.1) and stored in
+//! fixed-width rows (`k` slots per point and a count), sorted by distance with ties broken
+//! by point index. The searches write the rows in place: no list is allocated per point and
+//! nothing is packed afterwards, so a stage's neighbour memory is `8k + 4` bytes per point
+//! at its peak (per-point lists followed by a packed copy peaked at about twice that: ~370
+//! bytes a point at k = 20, the segment stage's largest allocation). Because the caller hands us the points already in a canonical order, the
 //! lists — and everything computed from them — do not depend on the input order.
 //!
 //! Two searches are available, a kd-tree (`kiddo::ImmutableKdTree`, built per call) and a
@@ -28,25 +31,36 @@ use kiddo::immutable::float::kdtree::ImmutableKdTree;
 use kiddo::SquaredEuclidean;
 use rayon::prelude::*;
 
-/// Neighbour lists of all points, flat.
+/// Neighbours of all points: row `i` holds `cnt[i]` of its `k` slots.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Neighbours {
-    offsets: Vec<u32>,
+    k: usize,
+    cnt: Vec<u32>,
     idx: Vec<u32>,
     dist2: Vec<f32>,
 }
 
 impl Neighbours {
+    /// Empty rows of width `k` for `n` points.
+    fn rows(n: usize, k: usize) -> Self {
+        Neighbours {
+            k,
+            cnt: vec![0; n],
+            idx: vec![0; n * k],
+            dist2: vec![0.0; n * k],
+        }
+    }
+
     /// Neighbours of point `i` (excluding `i`), nearest first.
     #[inline]
     pub fn of(&self, i: usize) -> &[u32] {
-        &self.idx[self.offsets[i] as usize..self.offsets[i + 1] as usize]
+        &self.idx[i * self.k..i * self.k + self.cnt[i] as usize]
     }
 
     /// Squared distances matching [`Neighbours::of`].
     #[inline]
     pub fn dist2_of(&self, i: usize) -> &[f32] {
-        &self.dist2[self.offsets[i] as usize..self.offsets[i + 1] as usize]
+        &self.dist2[i * self.k..i * self.k + self.cnt[i] as usize]
     }
 
     /// Neighbours of `i` closer than `r` (squared: `r2`); a prefix of [`Neighbours::of`].
@@ -59,7 +73,7 @@ impl Neighbours {
 
     /// Number of points.
     pub fn len(&self) -> usize {
-        self.offsets.len() - 1
+        self.cnt.len()
     }
 
     /// True when there are no points.
@@ -67,57 +81,95 @@ impl Neighbours {
         self.len() == 0
     }
 
-    fn from_lists(lists: Vec<Vec<(f32, u32)>>) -> Self {
-        let total: usize = lists.iter().map(Vec::len).sum();
-        let mut offsets = Vec::with_capacity(lists.len() + 1);
-        let mut idx = Vec::with_capacity(total);
-        let mut dist2 = Vec::with_capacity(total);
-        offsets.push(0u32);
-        for l in lists {
-            for (d, j) in l {
-                dist2.push(d);
-                idx.push(j);
-            }
-            offsets.push(idx.len() as u32);
+    /// Fills every row in parallel: `query(i, cand)` leaves point `i`'s candidates in `cand`
+    /// (any order, at least its `k` nearest), and the row keeps the `k` nearest by (distance,
+    /// index). Rows are processed in blocks of consecutive points (the callers' points are in
+    /// a spatially coherent order).
+    fn fill(n: usize, k: usize, query: impl Fn(usize, &mut Vec<(f32, u32)>) + Sync) -> Self {
+        let mut nb = Neighbours::rows(n, k);
+        if k == 0 {
+            return nb;
         }
-        Neighbours {
-            offsets,
-            idx,
-            dist2,
+        const BLOCK: usize = 1024;
+        nb.idx
+            .par_chunks_mut(BLOCK * k)
+            .zip(nb.dist2.par_chunks_mut(BLOCK * k))
+            .zip(nb.cnt.par_chunks_mut(BLOCK))
+            .enumerate()
+            .for_each_init(Vec::new, |cand, (b, ((idx, dist2), cnt))| {
+                for (o, c) in cnt.iter_mut().enumerate() {
+                    cand.clear();
+                    query(b * BLOCK + o, cand);
+                    finish(cand, k);
+                    for (t, &(d, j)) in cand.iter().enumerate() {
+                        idx[o * k + t] = j;
+                        dist2[o * k + t] = d;
+                    }
+                    *c = cand.len() as u32;
+                }
+            });
+        nb
+    }
+
+    /// Moves the rows from the order they were computed in (row `q` belongs to point
+    /// `order[q]`) to point order, in place, following the permutation's cycles with one
+    /// row of scratch.
+    fn unpermute(&mut self, order: &[u32]) {
+        let k = self.k;
+        let mut done = vec![false; order.len()];
+        let (mut ti, mut td) = (vec![0u32; k], vec![0f32; k]);
+        for start in 0..order.len() {
+            if done[start] {
+                continue;
+            }
+            ti.copy_from_slice(&self.idx[start * k..start * k + k]);
+            td.copy_from_slice(&self.dist2[start * k..start * k + k]);
+            let mut tc = self.cnt[start];
+            let mut dest = order[start] as usize;
+            loop {
+                // The scratch row belongs to point `dest`: swap it in, carry what was there
+                // (the row of point `order[dest]`).
+                ti.swap_with_slice(&mut self.idx[dest * k..dest * k + k]);
+                td.swap_with_slice(&mut self.dist2[dest * k..dest * k + k]);
+                std::mem::swap(&mut tc, &mut self.cnt[dest]);
+                done[dest] = true;
+                if dest == start {
+                    break;
+                }
+                dest = order[dest] as usize;
+            }
         }
     }
 }
 
 /// Sorts by (distance, index) and keeps the first `k`: the canonical neighbour list.
-fn finish(mut l: Vec<(f32, u32)>, k: usize) -> Vec<(f32, u32)> {
-    l.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+fn finish(l: &mut Vec<(f32, u32)>, k: usize) {
+    let by = |a: &(f32, u32), b: &(f32, u32)| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1));
+    if k > 0 && l.len() > k {
+        l.select_nth_unstable_by(k - 1, by);
+    }
     l.truncate(k);
-    l
+    l.sort_unstable_by(by);
 }
 
 /// The `k` nearest neighbours of every point within `radius`, with a kd-tree.
 pub fn knn_kdtree(pts: &[[f64; 3]], k: usize, radius: f64) -> Neighbours {
     if pts.is_empty() {
-        return Neighbours::from_lists(Vec::new());
+        return Neighbours::rows(0, k);
     }
     let tree: ImmutableKdTree<f64, u32, 3, 32> = ImmutableKdTree::new_from_slice(pts);
     // One extra: the query point itself comes back too.
     let want = NonZeroUsize::new(k + 1).unwrap_or(NonZeroUsize::MIN);
     let r2 = radius * radius;
-    let lists: Vec<Vec<(f32, u32)>> = pts
-        .par_iter()
-        .enumerate()
-        .map(|(i, p)| {
-            let found = tree.nearest_n_within::<SquaredEuclidean>(p, r2, want, true);
-            let l = found
+    Neighbours::fill(pts.len(), k, |i, cand| {
+        let found = tree.nearest_n_within::<SquaredEuclidean>(&pts[i], r2, want, true);
+        cand.extend(
+            found
                 .into_iter()
                 .filter(|nn| nn.item as usize != i)
-                .map(|nn| (nn.distance as f32, nn.item))
-                .collect();
-            finish(l, k)
-        })
-        .collect();
-    Neighbours::from_lists(lists)
+                .map(|nn| (nn.distance as f32, nn.item)),
+        );
+    })
 }
 
 /// The `k` nearest neighbours within `radius` of points on a 2.5-D surface (terrain, road):
@@ -129,30 +181,26 @@ pub fn knn_kdtree(pts: &[[f64; 3]], k: usize, radius: f64) -> Neighbours {
 /// or below.
 pub fn knn_surface(pts: &[[f64; 3]], k: usize, radius: f64) -> Neighbours {
     if pts.is_empty() {
-        return Neighbours::from_lists(Vec::new());
+        return Neighbours::rows(0, k);
     }
     let xy: Vec<[f64; 2]> = pts.iter().map(|p| [p[0], p[1]]).collect();
     let tree: ImmutableKdTree<f64, u32, 2, 32> = ImmutableKdTree::new_from_slice(&xy);
     let want = NonZeroUsize::new(2 * k + 1).unwrap_or(NonZeroUsize::MIN);
     let r2 = radius * radius;
-    let lists: Vec<Vec<(f32, u32)>> = pts
-        .par_iter()
-        .enumerate()
-        .map(|(i, p)| {
-            let found = tree.nearest_n::<SquaredEuclidean>(&xy[i], want);
-            let l = found
+    Neighbours::fill(pts.len(), k, |i, cand| {
+        let p = &pts[i];
+        let found = tree.nearest_n::<SquaredEuclidean>(&xy[i], want);
+        cand.extend(
+            found
                 .into_iter()
                 .filter(|nn| nn.item as usize != i)
                 .filter_map(|nn| {
                     let q = &pts[nn.item as usize];
                     let d2 = (q[0] - p[0]).powi(2) + (q[1] - p[1]).powi(2) + (q[2] - p[2]).powi(2);
                     (d2 <= r2).then_some((d2 as f32, nn.item))
-                })
-                .collect();
-            finish(l, k)
-        })
-        .collect();
-    Neighbours::from_lists(lists)
+                }),
+        );
+    })
 }
 
 /// Open-addressing hash table from packed cell coordinates to a range of the cell-sorted
@@ -239,7 +287,7 @@ fn occupancy(pts: &[[f64; 3]], lo: [f64; 3], c: f64) -> f64 {
 /// covers `radius`.
 pub fn knn_voxel(pts: &[[f64; 3]], k: usize, radius: f64) -> Neighbours {
     if pts.is_empty() {
-        return Neighbours::from_lists(Vec::new());
+        return Neighbours::rows(0, k);
     }
     let mut lo = [f64::INFINITY; 3];
     for p in pts {
@@ -283,64 +331,55 @@ pub fn knn_voxel(pts: &[[f64; 3]], k: usize, radius: f64) -> Neighbours {
     }
     let r2 = radius * radius;
     let max_l = (radius * inv).ceil() as i64 + 1;
-    let lists: Vec<Vec<(f32, u32)>> = pts
-        .par_iter()
-        .enumerate()
-        .map_init(Vec::new, |cand: &mut Vec<(f64, u32)>, (i, p)| {
-            cand.clear();
-            let c = cell_of(p);
-            let mut l = 0i64;
-            loop {
-                // Add the shell at Chebyshev distance l.
-                for dx in -l..=l {
-                    for dy in -l..=l {
-                        let edge = dx.abs() == l || dy.abs() == l;
-                        let dzs: &mut dyn Iterator<Item = i64> = if edge {
-                            &mut (-l..=l)
-                        } else {
-                            &mut [-l, l].into_iter().take(if l == 0 { 1 } else { 2 })
+    let by = |a: &(f32, u32), b: &(f32, u32)| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1));
+    Neighbours::fill(pts.len(), k, |i, cand| {
+        let p = &pts[i];
+        let c = cell_of(p);
+        let mut l = 0i64;
+        loop {
+            // Add the shell at Chebyshev distance l.
+            for dx in -l..=l {
+                for dy in -l..=l {
+                    let edge = dx.abs() == l || dy.abs() == l;
+                    let dzs: &mut dyn Iterator<Item = i64> = if edge {
+                        &mut (-l..=l)
+                    } else {
+                        &mut [-l, l].into_iter().take(if l == 0 { 1 } else { 2 })
+                    };
+                    for dz in dzs {
+                        let Some((a, b)) = table.get(pack([c[0] + dx, c[1] + dy, c[2] + dz]))
+                        else {
+                            continue;
                         };
-                        for dz in dzs {
-                            let Some((a, b)) = table.get(pack([c[0] + dx, c[1] + dy, c[2] + dz]))
-                            else {
-                                continue;
-                            };
-                            for (q, &j) in sorted[a as usize..b as usize]
-                                .iter()
-                                .zip(&order[a as usize..b as usize])
-                            {
-                                let d2 = (q[0] - p[0]).powi(2)
-                                    + (q[1] - p[1]).powi(2)
-                                    + (q[2] - p[2]).powi(2);
-                                if d2 <= r2 && j as usize != i {
-                                    cand.push((d2, j));
-                                }
+                        for (q, &j) in sorted[a as usize..b as usize]
+                            .iter()
+                            .zip(&order[a as usize..b as usize])
+                        {
+                            let d2 = (q[0] - p[0]).powi(2)
+                                + (q[1] - p[1]).powi(2)
+                                + (q[2] - p[2]).powi(2);
+                            if d2 <= r2 && j as usize != i {
+                                cand.push((d2 as f32, j));
                             }
                         }
                     }
                 }
-                let covered = l as f64 * cw;
-                if covered >= radius || l >= max_l {
+            }
+            let covered = l as f64 * cw;
+            if covered >= radius || l >= max_l {
+                break;
+            }
+            if cand.len() >= k && k > 0 {
+                cand.select_nth_unstable_by(k - 1, by);
+                cand.truncate(k);
+                // Strict, in f32: points outside the cube round to at least covered².
+                if cand[k - 1].0 < (covered * covered) as f32 {
                     break;
                 }
-                if cand.len() >= k {
-                    cand.select_nth_unstable_by(k - 1, |a, b| {
-                        a.0.total_cmp(&b.0).then(a.1.cmp(&b.1))
-                    });
-                    if cand[k - 1].0 <= covered * covered {
-                        break;
-                    }
-                }
-                l += 1;
             }
-            if cand.len() > k {
-                cand.select_nth_unstable_by(k - 1, |a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-                cand.truncate(k);
-            }
-            finish(cand.iter().map(|&(d, j)| (d as f32, j)).collect(), k)
-        })
-        .collect();
-    Neighbours::from_lists(lists)
+            l += 1;
+        }
+    })
 }
 
 /// Keeps `best` the `k` smallest (distance², index) offered so far, ascending.
@@ -379,11 +418,7 @@ const GRID2D_CELL: f64 = 0.7;
 pub fn knn_grid2d(pts: &[[f64; 3]], k: usize, radius: f64) -> Neighbours {
     let n = pts.len();
     if n == 0 || k == 0 {
-        return Neighbours {
-            offsets: vec![0; n + 1],
-            idx: Vec::new(),
-            dist2: Vec::new(),
-        };
+        return Neighbours::rows(n, k);
     }
     let mut lo = [f64::INFINITY; 2];
     let mut hi = [f64::NEG_INFINITY; 2];
@@ -443,84 +478,48 @@ pub fn knn_grid2d(pts: &[[f64; 3]], k: usize, radius: f64) -> Neighbours {
     }
     let r2 = radius * radius;
     let max_l = (radius * inv).ceil() as i64 + 1;
-    // Row of sorted position `q`: up to k (index, d²), nearest first; count in `cnt`.
-    let mut rows: Vec<(u32, f32)> = vec![(0, 0.0); n * k];
-    let mut cnt: Vec<u32> = vec![0; n];
-    const BLOCK: usize = 4096;
-    rows.par_chunks_mut(BLOCK * k)
-        .zip(cnt.par_chunks_mut(BLOCK))
-        .enumerate()
-        .for_each_init(Vec::new, |cand: &mut Vec<(f32, u32)>, (b, (rows, cnt))| {
-            for (o, c) in cnt.iter_mut().enumerate() {
-                let q = b * BLOCK + o;
-                let p = &sorted[q];
-                let me = order[q];
-                let cc = cell_of(p);
-                cand.clear();
-                let mut l = 0i64;
-                loop {
-                    for dx in -l..=l {
-                        let edge = dx.abs() == l;
-                        let step = if edge || l == 0 { 1 } else { 2 * l };
-                        let mut dy = -l;
-                        while dy <= l {
-                            if let Some((a, e)) = table.get(key([cc[0] + dx, cc[1] + dy])) {
-                                for (t, qp) in sorted[a as usize..e as usize].iter().enumerate() {
-                                    let d2 = (qp[0] - p[0]).powi(2)
-                                        + (qp[1] - p[1]).powi(2)
-                                        + (qp[2] - p[2]).powi(2);
-                                    let j = order[a as usize + t];
-                                    if d2 <= r2 && j != me {
-                                        // Ranked by the f32 distance, as every search here.
-                                        keep_nearest(cand, k, (d2 as f32, j));
-                                    }
-                                }
+    // Rows are computed in cell order (row `q` for the point at sorted position `q`), then
+    // moved to point order in place.
+    let mut nb = Neighbours::fill(n, k, |q, cand| {
+        let p = &sorted[q];
+        let me = order[q];
+        let cc = cell_of(p);
+        let mut l = 0i64;
+        loop {
+            for dx in -l..=l {
+                let edge = dx.abs() == l;
+                let step = if edge || l == 0 { 1 } else { 2 * l };
+                let mut dy = -l;
+                while dy <= l {
+                    if let Some((a, e)) = table.get(key([cc[0] + dx, cc[1] + dy])) {
+                        for (t, qp) in sorted[a as usize..e as usize].iter().enumerate() {
+                            let d2 = (qp[0] - p[0]).powi(2)
+                                + (qp[1] - p[1]).powi(2)
+                                + (qp[2] - p[2]).powi(2);
+                            let j = order[a as usize + t];
+                            if d2 <= r2 && j != me {
+                                // Ranked by the f32 distance, as every search here.
+                                keep_nearest(cand, k, (d2 as f32, j));
                             }
-                            dy += step;
                         }
                     }
-                    let covered = l as f64 * cw;
-                    if covered >= radius || l >= max_l {
-                        break;
-                    }
-                    // Strict, in f32: points outside the block round to at least covered².
-                    if cand.len() == k && cand[k - 1].0 < (covered * covered) as f32 {
-                        break;
-                    }
-                    l += 1;
+                    dy += step;
                 }
-                for (slot, &(d, j)) in rows[o * k..].iter_mut().zip(cand.iter()) {
-                    *slot = (j, d);
-                }
-                *c = cand.len() as u32;
             }
-        });
-    // Back to the input order, packed.
-    let mut rank = vec![0u32; n];
-    for (q, &i) in order.iter().enumerate() {
-        rank[i as usize] = q as u32;
-    }
-    let mut offsets = Vec::with_capacity(n + 1);
-    offsets.push(0u32);
-    let mut total = 0u32;
-    for &q in &rank {
-        total += cnt[q as usize];
-        offsets.push(total);
-    }
-    let mut idx = Vec::with_capacity(total as usize);
-    let mut dist2 = Vec::with_capacity(total as usize);
-    for &q in &rank {
-        let q = q as usize;
-        for &(j, d) in &rows[q * k..q * k + cnt[q] as usize] {
-            idx.push(j);
-            dist2.push(d);
+            let covered = l as f64 * cw;
+            if covered >= radius || l >= max_l {
+                break;
+            }
+            // Strict, in f32: points outside the block round to at least covered².
+            if cand.len() == k && cand[k - 1].0 < (covered * covered) as f32 {
+                break;
+            }
+            l += 1;
         }
-    }
-    Neighbours {
-        offsets,
-        idx,
-        dist2,
-    }
+    });
+    drop((sorted, table));
+    nb.unpermute(&order);
+    nb
 }
 
 #[cfg(test)]
@@ -567,7 +566,7 @@ mod tests {
         // keep an arbitrary one of equidistant points at the k-th place, so it is not one.)
         let brute = |i: usize, k: usize, r: f64| -> Vec<u32> {
             let p = pts[i];
-            let l: Vec<(f32, u32)> = pts
+            let mut l: Vec<(f32, u32)> = pts
                 .iter()
                 .enumerate()
                 .filter(|&(j, _)| j != i)
@@ -578,7 +577,8 @@ mod tests {
                 .filter(|&(d2, _)| d2 <= r * r)
                 .map(|(d2, j)| (d2 as f32, j))
                 .collect();
-            finish(l, k).into_iter().map(|(_, j)| j).collect()
+            finish(&mut l, k);
+            l.into_iter().map(|(_, j)| j).collect()
         };
         for (k, r) in [(12, 0.35), (20, 0.2), (5, 1.0)] {
             let b = knn_grid2d(&pts, k, r);
@@ -588,6 +588,29 @@ mod tests {
             }
         }
         assert!(knn_grid2d(&[], 12, 0.3).is_empty());
+    }
+
+    #[test]
+    fn rows_move_to_point_order_in_place() {
+        // Rows computed for points in the order `order` (row q belongs to point order[q]),
+        // with cycles of several lengths and fixed points.
+        let order: Vec<u32> = vec![3, 0, 1, 2, 4, 6, 5, 9, 7, 8];
+        let k = 3;
+        let mut nb = Neighbours::rows(order.len(), k);
+        for (q, &i) in order.iter().enumerate() {
+            nb.cnt[q] = (i % 3) + 1;
+            for t in 0..k {
+                nb.idx[q * k + t] = 100 * i + t as u32;
+                nb.dist2[q * k + t] = i as f32 + 0.1 * t as f32;
+            }
+        }
+        nb.unpermute(&order);
+        for i in 0..order.len() {
+            let n = (i as u32 % 3 + 1) as usize;
+            let want: Vec<u32> = (0..n as u32).map(|t| 100 * i as u32 + t).collect();
+            assert_eq!(nb.of(i), &want[..], "point {i}");
+            assert_eq!(nb.dist2_of(i)[0], i as f32);
+        }
     }
 
     #[test]

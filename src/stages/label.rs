@@ -161,12 +161,13 @@ impl Stage for LabelStage {
         Some(self.section.context_m)
     }
     fn bytes_per_point(&self) -> usize {
-        // Neighbour lists (index + distance, k of them, in fixed-width rows while searched),
-        // normals, colour, region and class arrays, the object voxel maps. Measured by
-        // `tests/stage_memory.rs` (counting allocator, k = 12): up to 218 B per context point
-        // including the per-tile arrays below (synthetic street, 1.0 M of a tile's 1.27 M
-        // points in the context; 348 B with the per-point lists of the kd-tree search).
-        8 * self.section.ground.k + 100
+        // Neighbour rows (index + distance², k of them, written in place and moved to point
+        // order in place), normals, colour, region and class arrays, the object voxel maps.
+        // Measured by `tests/stage_memory.rs` (counting allocator, k = 12): up to 148 B per
+        // context point including the per-tile arrays below (synthetic street, 1.0 M of a
+        // tile's 1.27 M points in the context; 218 B when the rows were packed into a second
+        // copy, 348 B with the per-point lists of the kd-tree search).
+        8 * self.section.ground.k + 40
     }
     fn bytes_per_tile_point(&self) -> usize {
         // Flags, classes, heights above ground, voxel and object ids built for every tile

@@ -104,13 +104,19 @@ impl Stage for SegmentStage {
         Some(self.section.context_m)
     }
     fn bytes_per_point(&self) -> usize {
-        // Neighbour lists (u32 per neighbour, k of them), canonical order, normals, colour
-        // in two forms, labels and the growing queues. Measured by `tests/stage_memory.rs`
-        // (counting allocator, k = 20): up to 234 B per context point (simulated drive; 137 B
-        // on the synthetic street); summary.json `stages.segment.bytes_per_point_peak` showed
-        // up to 333 B per tile point on the split leaves of the 10.9 M-point drive at 256 MiB,
-        // so 8 B per neighbour plus 140 B (+25 % slack: 375 B).
-        8 * self.section.params.k + 140
+        // Neighbour rows (u32 index + f32 distance², k of them, written in place), canonical
+        // order, normals, colour in two forms, labels and the growing queues. Measured by
+        // `tests/stage_memory.rs` (counting allocator, k = 20) and summary.json `stages.
+        // segment.bytes_per_point_peak`: 145 B per tile point on the leaves of the 300 m
+        // street at 256 MiB (243 B with per-point lists packed into a second copy), so 8 B
+        // per neighbour plus 40 B (+25 % slack).
+        8 * self.section.params.k + 40
+    }
+    fn bytes_per_tile_point(&self) -> usize {
+        // The mask, colour and label arrays over every tile point (1 + 6 + 4 B, and the
+        // output labels while the table is built): a big tile with few non-ground points
+        // grew 10.4 MiB for 52 k context points of 564 k (simulated drive).
+        16
     }
     fn process(
         &self,

@@ -19,12 +19,13 @@
 
 use super::components::{node, split, Components, Final};
 use super::pairs::match_pair;
+use super::spill::{Extent, SpillFile};
 use super::summary::{BorderRecord, BorderSummary};
 use super::{CellKey, CellRelease, StitchError, StitchParams, StitchStats};
 use crate::geom::cell_rect;
-use crate::model::Rect;
+use crate::model::{Rect, TileId};
 use crate::tiling::spill::FastHasher;
-use std::collections::{HashMap, HashSet};
+use std::collections::{BTreeSet, HashMap, HashSet};
 use std::hash::BuildHasherDefault;
 
 /// A tile whose segments all have their global ids.
@@ -76,7 +77,14 @@ impl CellState {
 
 #[derive(Debug)]
 struct TileState<P> {
+    /// The border summary while the tile is open and it is in memory …
     summary: Option<BorderSummary>,
+    /// … or while it waits in the spill file (with its record count and in-memory bytes).
+    spilled: Option<(Extent, u64, u64)>,
+    /// The tile, its core and name (kept when the summary is spilled).
+    id: TileId,
+    rect: Rect,
+    name: String,
     ids: Vec<u64>,
     /// Per label: whether the segment has core points (is written by this tile).
     core: Vec<bool>,
@@ -108,6 +116,11 @@ pub struct Stitcher<P> {
     held_records: u64,
     held_bytes: u64,
     waiting: u64,
+    /// Summaries beyond `mem_cap` bytes go to `spill`, oldest first (`in_mem`: slots whose
+    /// summary is in memory, in arrival order).
+    spill: Option<SpillFile>,
+    mem_cap: u64,
+    in_mem: BTreeSet<u32>,
 }
 
 impl<P> Stitcher<P> {
@@ -132,7 +145,18 @@ impl<P> Stitcher<P> {
             held_records: 0,
             held_bytes: 0,
             waiting: 0,
+            spill: None,
+            mem_cap: u64::MAX,
+            in_mem: BTreeSet::new(),
         }
+    }
+
+    /// Keeps at most `cap_bytes` of border summaries in memory; the oldest beyond that wait
+    /// in a spill file in `dir` (see [`super::spill`]).
+    pub fn spill_beyond(mut self, dir: &std::path::Path, cap_bytes: u64) -> Self {
+        self.spill = Some(SpillFile::new(dir));
+        self.mem_cap = cap_bytes;
+        self
     }
 
     /// Statistics so far.
@@ -240,12 +264,21 @@ impl<P> Stitcher<P> {
             .collect();
         others.sort_unstable();
         for o in others {
-            let Some(other) = self.tiles.get(&o).and_then(|t| t.summary.as_ref()) else {
+            let Some(t) = self.tiles.get(&o) else {
                 continue;
             };
-            if !reach.intersects(&other.core) {
+            if !reach.intersects(&t.rect) {
                 continue;
             }
+            let loaded;
+            let other = match (&t.summary, t.spilled, &mut self.spill) {
+                (Some(s), _, _) => s,
+                (None, Some((x, _, _)), Some(sp)) => {
+                    loaded = sp.read(x, &t.name)?;
+                    &loaded
+                }
+                _ => continue,
+            };
             let m = match_pair(&summary, other, self.strip_m, &self.params);
             if m.shared_points == 0 && m.candidates == 0 {
                 continue;
@@ -271,9 +304,14 @@ impl<P> Stitcher<P> {
         s.frontier_bytes_max = s.frontier_bytes_max.max(self.held_bytes);
         s.open_nodes_max = s.open_nodes_max.max(self.comps.len() as u64);
         let core = summary.anchors.iter().map(|&a| a != u64::MAX).collect();
+        self.in_mem.insert(slot);
         self.tiles.insert(
             slot,
             TileState {
+                id: summary.tile,
+                rect: summary.core,
+                name: summary.name.clone(),
+                spilled: None,
                 summary: Some(summary),
                 ids,
                 core,
@@ -303,6 +341,42 @@ impl<P> Stitcher<P> {
                 }
             }
         }
+        self.spill_over_cap()
+    }
+
+    /// Moves the oldest in-memory summaries to the spill file until the rest fit the cap.
+    /// (Spilled summaries are not trimmed: records no tile to come can use are harmless, as
+    /// matching applies the exact geometry; they only cost disk until the tile closes.)
+    fn spill_over_cap(&mut self) -> Result<(), StitchError> {
+        let Some(sp) = &mut self.spill else {
+            return Ok(());
+        };
+        while self.held_bytes > self.mem_cap {
+            let Some(slot) = self.in_mem.pop_first() else {
+                break;
+            };
+            let Some(t) = self.tiles.get_mut(&slot) else {
+                continue;
+            };
+            let Some(sum) = t.summary.take() else {
+                continue;
+            };
+            let (records, bytes) = (sum.records() as u64, sum.bytes() as u64);
+            match sp.write(&sum) {
+                Ok(x) => t.spilled = Some((x, records, bytes)),
+                Err(e) => {
+                    t.summary = Some(sum);
+                    return Err(e);
+                }
+            }
+            self.held_bytes -= bytes;
+        }
+        let s = &mut self.stats;
+        s.spilled_summaries = sp.writes;
+        s.spill_bytes_written = sp.bytes_written;
+        s.spill_reads = sp.reads;
+        s.spill_bytes_read = sp.bytes_read;
+        s.spill_bytes_max = sp.live_bytes_max;
         Ok(())
     }
 
@@ -419,11 +493,7 @@ impl<P> Stitcher<P> {
         }
         if let Some(t) = self.tiles.values().next() {
             return Err(StitchError::BadSummary {
-                tile: t
-                    .summary
-                    .as_ref()
-                    .map(|s| s.name.clone())
-                    .unwrap_or_default(),
+                tile: t.name.clone(),
                 reason: format!(
                     "{} tile(s) still waiting for final ids at the end of the run",
                     self.tiles.len()
@@ -482,13 +552,26 @@ impl<P> Stitcher<P> {
             return;
         };
         t.closed = true;
-        if let Some(s) = t.summary.take() {
-            if let Some(e) = self.cells.get_mut(&(s.tile.ix, s.tile.iy)) {
-                e.held = e.held.saturating_sub(s.records() as u64);
+        let held = match (t.summary.take(), t.spilled.take()) {
+            (Some(s), _) => {
+                self.held_bytes -= s.bytes() as u64;
+                self.in_mem.remove(&slot);
+                Some((s.tile, s.records() as u64))
+            }
+            (None, Some((x, records, _))) => {
+                if let Some(sp) = &mut self.spill {
+                    sp.release(x);
+                }
+                Some((t.id, records))
+            }
+            _ => None,
+        };
+        if let Some((id, records)) = held {
+            if let Some(e) = self.cells.get_mut(&(id.ix, id.iy)) {
+                e.held = e.held.saturating_sub(records);
             }
             self.open_tiles -= 1;
-            self.held_records -= s.records() as u64;
-            self.held_bytes -= s.bytes() as u64;
+            self.held_records -= records;
         }
         let nodes = std::mem::take(&mut t.nodes);
         for l in nodes {
@@ -571,7 +654,6 @@ impl<P> Stitcher<P> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::TileId;
 
     #[test]
     fn cell_rect_walks_back_up_the_quadtree() {

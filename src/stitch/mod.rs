@@ -29,6 +29,7 @@
 pub mod components;
 pub mod frontier;
 pub mod pairs;
+pub mod spill;
 pub mod summary;
 pub use crate::error::StitchError;
 pub use crate::model::CellKey;

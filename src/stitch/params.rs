@@ -76,12 +76,22 @@ pub struct StitchStats {
     pub max_tiles_per_segment: u64,
     /// Most tiles whose border summaries were held at once (the frontier).
     pub frontier_tiles_max: u64,
-    /// Most border records held at once.
+    /// Most border records held at once (in memory and spilled).
     pub frontier_records_max: u64,
-    /// Most bytes of border summaries held at once.
+    /// Most bytes of border summaries held in memory at once (the rest is spilled).
     pub frontier_bytes_max: u64,
     /// Most union–find nodes (segments of components not yet final) held at once.
     pub open_nodes_max: u64,
     /// Most closed tiles waiting for a component to become final before being written.
     pub waiting_tiles_max: u64,
+    /// Border summaries moved to the spill file (the frontier beyond its memory share).
+    pub spilled_summaries: u64,
+    /// Bytes written to the spill file.
+    pub spill_bytes_written: u64,
+    /// Spilled summaries read back to be matched with an arriving neighbour.
+    pub spill_reads: u64,
+    /// Bytes read back from the spill file.
+    pub spill_bytes_read: u64,
+    /// Most bytes of summaries waiting in the spill file at once.
+    pub spill_bytes_max: u64,
 }

@@ -81,7 +81,20 @@ fn feed(
     break_every: i64,
     lag: impl Fn(i64) -> i64,
 ) -> (Vec<(i64, Vec<u64>)>, StitchStats, usize) {
+    feed_spilling(n, break_every, lag, None)
+}
+
+/// [`feed`] with the frontier capped at `spill.1` bytes in memory, spilling into `spill.0`.
+fn feed_spilling(
+    n: i64,
+    break_every: i64,
+    lag: impl Fn(i64) -> i64,
+    spill: Option<(&std::path::Path, u64)>,
+) -> (Vec<(i64, Vec<u64>)>, StitchStats, usize) {
     let mut st: Stitcher<i64> = Stitcher::new(StitchParams::default(), STRIP_M);
+    if let Some((dir, cap)) = spill {
+        st = st.spill_beyond(dir, cap);
+    }
     let mut arrivals: Vec<(i64, i64)> = (0..n).map(|i| (i + lag(i), i)).collect();
     arrivals.sort();
     let mut next = 0;
@@ -175,6 +188,46 @@ fn a_run_long_segment_keeps_its_tiles_waiting_but_not_their_summaries() {
     assert!(s.frontier_tiles_max <= 3, "{s:?}");
     assert_eq!(s.segments_crossing_borders, 1);
     assert_eq!(s.max_tiles_per_segment, 60);
+}
+
+/// A frontier capped below one summary keeps every summary in the spill file, reads them
+/// back to match arriving neighbours, and stitches exactly as in memory; the file is gone
+/// with the stitcher.
+#[test]
+fn a_spilled_frontier_stitches_the_same() {
+    let dir = tempfile::tempdir().unwrap();
+    for lag in [|_: i64| 0, |i: i64| (i * 7919) % 4, |i: i64| 30 - i] {
+        let (a, sa, _) = feed(30, 7, lag);
+        let (b, sb, _) = feed_spilling(30, 7, lag, Some((dir.path(), 0)));
+        assert_eq!(a, b);
+        assert_eq!(
+            (
+                sa.merges,
+                sa.accepted_pairs,
+                sa.shared_points,
+                sa.global_segments
+            ),
+            (
+                sb.merges,
+                sb.accepted_pairs,
+                sb.shared_points,
+                sb.global_segments
+            )
+        );
+        assert_eq!(sb.spilled_summaries, 30);
+        assert!(sb.spill_reads > 0 && sb.spill_bytes_max > 0, "{sb:?}");
+        let one = summary(1, 7).bytes() as u64;
+        assert!(
+            sb.frontier_bytes_max <= one,
+            "{} > {one}",
+            sb.frontier_bytes_max
+        );
+        // A cap of two summaries keeps the newest in memory: fewer reads.
+        let (c, sc, _) = feed_spilling(30, 7, lag, Some((dir.path(), 2 * one)));
+        assert_eq!(a, c);
+        assert!(sc.spill_reads < sb.spill_reads, "{sc:?}");
+    }
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
 }
 
 #[test]
