@@ -9,10 +9,11 @@
 //! in its life), so keeping it in a file costs a sequential write and a few reads from the
 //! page cache, and the memory stays at the reserve whatever the street.
 //!
-//! The file lives in the run's private staging directory and is removed with the stitcher.
-//! Extents of closed tiles are given back to the file system (hole punching on Linux; the
-//! file is truncated whenever nothing is left in it), so the disk use follows the frontier
-//! too.
+//! The files live in the run's private staging directory and are removed with the
+//! stitcher. Extents of closed tiles are given back to the file system (hole punching on
+//! Linux); a part file is written up to 256 MiB, then the next one is started, and a part is
+//! removed once nothing in it is needed (the one being written is truncated instead), so the
+//! disk use follows the frontier and no file grows with the run.
 
 use super::summary::BorderSummary;
 use super::StitchError;
@@ -20,22 +21,41 @@ use std::fs::File;
 use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
 
-/// Where a spilled summary lies in the spill file.
+/// A part file is closed for writing once it reaches this many bytes; it is removed when its
+/// last summary is released. (Bounds the files' logical size on a run of any length: hole
+/// punching frees blocks but never shrinks a file.)
+const ROTATE_BYTES: u64 = 256 << 20;
+
+/// Where a spilled summary lies.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Extent {
-    /// Byte offset.
+    /// Part file number.
+    pub part: u32,
+    /// Byte offset in it.
     pub at: u64,
     /// Length in bytes.
     pub len: u64,
 }
 
-/// An append-only file of border summaries.
+/// One part file.
 #[derive(Debug)]
-pub struct SpillFile {
+struct Part {
+    id: u32,
     path: PathBuf,
-    file: Option<File>,
+    file: File,
     end: u64,
     live: u64,
+}
+
+/// Append-only part files of border summaries (`frontier-N.spill`), written one after the
+/// other.
+#[derive(Debug)]
+pub struct SpillFile {
+    dir: PathBuf,
+    rotate_bytes: u64,
+    /// Parts with live summaries, and the one being written (last).
+    parts: Vec<Part>,
+    next_id: u32,
     live_bytes: u64,
     /// Summaries written.
     pub writes: u64,
@@ -45,18 +65,22 @@ pub struct SpillFile {
     pub reads: u64,
     /// Bytes read back.
     pub bytes_read: u64,
-    /// Most bytes of live summaries in the file at once.
+    /// Most bytes of live summaries in the files at once.
     pub live_bytes_max: u64,
 }
 
 impl SpillFile {
-    /// A spill file at `dir/frontier.spill`, created when the first summary is written.
+    /// Spill files in `dir`, created when the first summary is written.
     pub fn new(dir: &Path) -> Self {
+        Self::rotating_at(dir, ROTATE_BYTES)
+    }
+
+    fn rotating_at(dir: &Path, rotate_bytes: u64) -> Self {
         SpillFile {
-            path: dir.join("frontier.spill"),
-            file: None,
-            end: 0,
-            live: 0,
+            dir: dir.to_path_buf(),
+            rotate_bytes,
+            parts: Vec::new(),
+            next_id: 0,
             live_bytes: 0,
             writes: 0,
             bytes_written: 0,
@@ -66,72 +90,95 @@ impl SpillFile {
         }
     }
 
-    fn err(&self, what: &str, e: std::io::Error) -> StitchError {
-        StitchError::Spill(format!("{what} {}: {e}", self.path.display()))
+    fn err(path: &Path, what: &str, e: std::io::Error) -> StitchError {
+        StitchError::Spill(format!("{what} {}: {e}", path.display()))
     }
 
     /// Appends `s`; returns where it went.
     pub fn write(&mut self, s: &BorderSummary) -> Result<Extent, StitchError> {
-        if self.file.is_none() {
-            let f = std::fs::OpenOptions::new()
+        if self.parts.last().is_none_or(|p| p.end >= self.rotate_bytes) {
+            let path = self.dir.join(format!("frontier-{}.spill", self.next_id));
+            let file = std::fs::OpenOptions::new()
                 .read(true)
                 .write(true)
                 .create_new(true)
-                .open(&self.path)
-                .map_err(|e| self.err("cannot create", e))?;
-            self.file = Some(f);
+                .open(&path)
+                .map_err(|e| Self::err(&path, "cannot create", e))?;
+            self.parts.push(Part {
+                id: self.next_id,
+                path,
+                file,
+                end: 0,
+                live: 0,
+            });
+            self.next_id += 1;
         }
         let bytes = s.to_bytes();
-        let at = self.end;
-        if let Some(f) = &self.file {
-            f.write_all_at(&bytes, at)
-                .map_err(|e| self.err("cannot write", e))?;
-        }
         let len = bytes.len() as u64;
-        self.end += len;
-        self.live += 1;
+        let Some(p) = self.parts.last_mut() else {
+            return Err(StitchError::Spill("no spill file".into()));
+        };
+        p.file
+            .write_all_at(&bytes, p.end)
+            .map_err(|e| Self::err(&p.path, "cannot write", e))?;
+        let x = Extent {
+            part: p.id,
+            at: p.end,
+            len,
+        };
+        p.end += len;
+        p.live += 1;
         self.live_bytes += len;
         self.live_bytes_max = self.live_bytes_max.max(self.live_bytes);
         self.writes += 1;
         self.bytes_written += len;
-        Ok(Extent { at, len })
+        Ok(x)
     }
 
     /// Reads back the summary at `x` (it stays in the file); `name` is the tile, for errors.
     pub fn read(&mut self, x: Extent, name: &str) -> Result<BorderSummary, StitchError> {
-        let Some(f) = &self.file else {
+        let Some(p) = self.parts.iter().find(|p| p.id == x.part) else {
             return Err(StitchError::Spill(format!(
-                "tile {name}: its summary is not in the spill file"
+                "tile {name}: spill part {} is gone",
+                x.part
             )));
         };
         let mut buf = vec![0u8; x.len as usize];
-        f.read_exact_at(&mut buf, x.at)
-            .map_err(|e| self.err("cannot read", e))?;
+        p.file
+            .read_exact_at(&mut buf, x.at)
+            .map_err(|e| Self::err(&p.path, "cannot read", e))?;
         self.reads += 1;
         self.bytes_read += x.len;
         BorderSummary::from_bytes(&buf, name)
     }
 
-    /// The summary at `x` is no longer needed: its blocks go back to the file system.
+    /// The summary at `x` is no longer needed: its blocks go back to the file system, and a
+    /// part with nothing left is removed (or, the one being written, started over).
     pub fn release(&mut self, x: Extent) {
-        self.live = self.live.saturating_sub(1);
         self.live_bytes = self.live_bytes.saturating_sub(x.len);
-        let Some(f) = &self.file else { return };
-        if self.live == 0 {
-            // Nothing left: start the file over (portable, and undoes any fragmentation).
-            if f.set_len(0).is_ok() {
-                self.end = 0;
-            }
+        let last = self.parts.len().saturating_sub(1);
+        let Some(i) = self.parts.iter().position(|p| p.id == x.part) else {
             return;
+        };
+        let p = &mut self.parts[i];
+        p.live = p.live.saturating_sub(1);
+        if p.live > 0 {
+            crate::sys::punch_hole(&p.file, x.at, x.len);
+        } else if i == last {
+            if p.file.set_len(0).is_ok() {
+                p.end = 0;
+            }
+        } else {
+            let p = self.parts.remove(i);
+            let _ = std::fs::remove_file(&p.path);
         }
-        crate::sys::punch_hole(f, x.at, x.len);
     }
 }
 
 impl Drop for SpillFile {
     fn drop(&mut self) {
-        if self.file.take().is_some() {
-            let _ = std::fs::remove_file(&self.path);
+        for p in self.parts.drain(..) {
+            let _ = std::fs::remove_file(&p.path);
         }
     }
 }
@@ -173,7 +220,7 @@ mod tests {
     #[test]
     fn summaries_round_trip_and_the_file_goes_away() {
         let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("frontier.spill");
+        let path = dir.path().join("frontier-0.spill");
         let mut sp = SpillFile::new(dir.path());
         let (a, b) = (summary(1000, 1), summary(10, 2));
         let xa = sp.write(&a).unwrap();
@@ -193,13 +240,50 @@ mod tests {
     }
 
     #[test]
+    fn full_parts_rotate_and_go_when_emptied() {
+        let dir = tempfile::tempdir().unwrap();
+        let files = || {
+            let mut v: Vec<String> = std::fs::read_dir(dir.path())
+                .unwrap()
+                .map(|e| e.unwrap().file_name().to_string_lossy().to_string())
+                .collect();
+            v.sort();
+            v
+        };
+        let a = summary(100, 1);
+        let one = a.to_bytes().len() as u64;
+        // Two summaries per part.
+        let mut sp = SpillFile::rotating_at(dir.path(), 2 * one);
+        let x: Vec<Extent> = (0..5).map(|_| sp.write(&a).unwrap()).collect();
+        assert_eq!(
+            x.iter().map(|e| e.part).collect::<Vec<_>>(),
+            [0, 0, 1, 1, 2]
+        );
+        assert_eq!(
+            files(),
+            ["frontier-0.spill", "frontier-1.spill", "frontier-2.spill"]
+        );
+        sp.release(x[0]);
+        assert_eq!(sp.read(x[1], "t1").unwrap(), a);
+        sp.release(x[1]);
+        assert_eq!(files(), ["frontier-1.spill", "frontier-2.spill"]);
+        sp.release(x[3]);
+        sp.release(x[2]);
+        assert_eq!(files(), ["frontier-2.spill"]);
+        assert_eq!(sp.read(x[4], "t1").unwrap(), a);
+        assert!(matches!(sp.read(x[0], "t1"), Err(StitchError::Spill(_))));
+        drop(sp);
+        assert!(files().is_empty());
+    }
+
+    #[test]
     fn a_damaged_spill_file_is_an_error() {
         let dir = tempfile::tempdir().unwrap();
         let mut sp = SpillFile::new(dir.path());
         let x = sp.write(&summary(50, 1)).unwrap();
         let f = std::fs::OpenOptions::new()
             .write(true)
-            .open(dir.path().join("frontier.spill"))
+            .open(dir.path().join("frontier-0.spill"))
             .unwrap();
         f.set_len(x.len / 2).unwrap();
         assert!(matches!(sp.read(x, "t1"), Err(StitchError::Spill(_))));
