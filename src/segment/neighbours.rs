@@ -1,12 +1,13 @@
 //! Fixed-size neighbourhood lists: the `k` nearest points within a radius, for every point.
 //!
 //! The lists are built once per call (Table 3-1 step 1, thesis §3.5.1) and stored in
-//! fixed-width rows (`k` slots per point and a count), sorted by distance with ties broken
-//! by point index. The searches write the rows in place: no list is allocated per point and
-//! nothing is packed afterwards, so a stage's neighbour memory is `8k + 4` bytes per point
-//! at its peak (per-point lists followed by a packed copy peaked at about twice that: ~370
-//! bytes a point at k = 20, the segment stage's largest allocation). Because the caller hands us the points already in a canonical order, the
-//! lists — and everything computed from them — do not depend on the input order.
+//! fixed-width rows (`k` slots per point and a count), sorted by distance (as f32) with ties
+//! broken by point index. The searches write the rows in place: no list is allocated per
+//! point and nothing is packed afterwards, so a stage's neighbour memory is `8k + 4` bytes
+//! per point at its peak (per-point lists followed by a packed copy peaked at about twice
+//! that: ~370 bytes a point at k = 20, the segment stage's largest allocation). Because the
+//! caller hands us the points already in a canonical order, the lists — and everything
+//! computed from them — do not depend on the input order.
 //!
 //! Two searches are available, a kd-tree (`kiddo::ImmutableKdTree`, built per call) and a
 //! hashed voxel grid whose cell width adapts to the data ([`knn_voxel`]). Measured with

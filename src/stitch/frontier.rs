@@ -294,6 +294,9 @@ impl<P> Stitcher<P> {
                 }
             }
         }
+        // Room for the new summary first (it was matched above against what is in memory), so
+        // the frontier in memory stays within the cap unless one summary alone exceeds it.
+        self.spill_over_cap(summary.bytes() as u64)?;
         self.stats.tiles += 1;
         self.open_tiles += 1;
         self.held_records += summary.records() as u64;
@@ -341,17 +344,19 @@ impl<P> Stitcher<P> {
                 }
             }
         }
-        self.spill_over_cap()
+        // A summary bigger than the whole cap goes to the spill file itself.
+        self.spill_over_cap(0)
     }
 
-    /// Moves the oldest in-memory summaries to the spill file until the rest fit the cap.
-    /// (Spilled summaries are not trimmed: records no tile to come can use are harmless, as
-    /// matching applies the exact geometry; they only cost disk until the tile closes.)
-    fn spill_over_cap(&mut self) -> Result<(), StitchError> {
+    /// Moves the oldest in-memory summaries to the spill file until the rest and `incoming`
+    /// more bytes fit the cap. (Spilled summaries are not trimmed: records no tile to come can
+    /// use are harmless, as matching applies the exact geometry; they only cost disk until
+    /// the tile closes.)
+    fn spill_over_cap(&mut self, incoming: u64) -> Result<(), StitchError> {
         let Some(sp) = &mut self.spill else {
             return Ok(());
         };
-        while self.held_bytes > self.mem_cap {
+        while self.held_bytes + incoming > self.mem_cap {
             let Some(slot) = self.in_mem.pop_first() else {
                 break;
             };

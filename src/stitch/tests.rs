@@ -222,10 +222,17 @@ fn a_spilled_frontier_stitches_the_same() {
             "{} > {one}",
             sb.frontier_bytes_max
         );
-        // A cap of two summaries keeps the newest in memory: fewer reads.
-        let (c, sc, _) = feed_spilling(30, 7, lag, Some((dir.path(), 2 * one)));
+        // A cap of two summaries keeps the newest in memory (fewer reads), and room is made
+        // before a summary is added: never more than the cap in memory.
+        let cap = 2 * one + one / 2;
+        let (c, sc, _) = feed_spilling(30, 7, lag, Some((dir.path(), cap)));
         assert_eq!(a, c);
         assert!(sc.spill_reads < sb.spill_reads, "{sc:?}");
+        assert!(
+            sc.frontier_bytes_max <= cap,
+            "{} > {cap}",
+            sc.frontier_bytes_max
+        );
     }
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
 }
