@@ -4,7 +4,7 @@
 use std::process::Command;
 
 mod common;
-use common::{max_rss_kb, timed};
+use common::{max_rss_kb, run_summary, timed};
 
 #[test]
 fn twenty_million_points_stay_under_256_mib() {
@@ -33,10 +33,7 @@ fn twenty_million_points_stay_under_256_mib() {
         .arg(&scene)
         .output()
         .unwrap();
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert!(o.status.success(), "{err}");
-    let summary: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(out.join("summary.json")).unwrap()).unwrap();
+    let (summary, err) = run_summary(&o, &out);
     let points = summary["points_out"].as_u64().unwrap();
     assert!(points >= 20_000_000, "only {points} points");
     assert_eq!(summary["points_in"], summary["points_out"]);

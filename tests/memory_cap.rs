@@ -12,7 +12,7 @@
 use std::process::Command;
 
 mod common;
-use common::{max_rss_kb, timed};
+use common::{max_rss_kb, run_summary, timed};
 
 /// Street length for the 160 MiB run: long enough that one worker's frontier outgrows its
 /// share (60 m: 83 summaries spilled, 1.3 M points, 79 s and 112.8 MiB in a release build).
@@ -44,10 +44,7 @@ fn capped_run(length_m: u32, budget: u32, threads: u32) -> serde_json::Value {
         .arg(&scene)
         .output()
         .unwrap();
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert!(o.status.success(), "{err}");
-    let summary: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(out.join("summary.json")).unwrap()).unwrap();
+    let (summary, err) = run_summary(&o, &out);
     assert_eq!(summary["points_in"], summary["points_out"]);
     assert_eq!(summary["budget"]["workers"], threads);
     let hwm = summary["peak_rss_mb"].as_f64().unwrap();

@@ -9,6 +9,9 @@
 use std::path::Path;
 use std::process::Command;
 
+mod common;
+use common::{max_rss_kb, run_summary, timed};
+
 struct Measured {
     tiles: u64,
     points: u64,
@@ -39,14 +42,7 @@ fn drive(dir: &Path, tiles_in_row: u32) -> Measured {
         .status()
         .unwrap();
     assert!(st.success());
-    let timed = Path::new("/usr/bin/time").exists();
-    let mut cmd = if timed {
-        let mut c = Command::new("/usr/bin/time");
-        c.args(["-f", "MAXRSS %M"]).arg(exe);
-        c
-    } else {
-        Command::new(exe)
-    };
+    let (mut cmd, _) = timed(exe);
     let o = cmd
         .args([
             "-q",
@@ -67,16 +63,9 @@ fn drive(dir: &Path, tiles_in_row: u32) -> Measured {
         .arg(&scene)
         .output()
         .unwrap();
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert!(o.status.success(), "{err}");
-    let s: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(out.join("summary.json")).unwrap()).unwrap();
+    let (s, err) = run_summary(&o, &out);
     let mut rss_mb = s["peak_rss_mb"].as_f64().unwrap();
-    if let Some(kb) = err
-        .lines()
-        .find_map(|l| l.strip_prefix("MAXRSS "))
-        .and_then(|v| v.trim().parse::<f64>().ok())
-    {
+    if let Some(kb) = max_rss_kb(&err) {
         rss_mb = rss_mb.max(kb / 1024.0);
     }
     let _ = std::fs::remove_dir_all(&scene);

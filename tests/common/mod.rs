@@ -220,6 +220,16 @@ pub fn timed(exe: &str) -> (std::process::Command, bool) {
     }
 }
 
+/// Checks that a `tessera run … --out OUT` exited 0 (its stderr otherwise is the message) and
+/// returns OUT's summary.json with the run's stderr (where [`max_rss_kb`] finds its figure).
+pub fn run_summary(o: &std::process::Output, out: &Path) -> (serde_json::Value, String) {
+    let err = String::from_utf8_lossy(&o.stderr).to_string();
+    assert!(o.status.success(), "{err}");
+    let summary = serde_json::from_slice(&std::fs::read(out.join("summary.json")).unwrap())
+        .unwrap_or_else(|e| panic!("{}: {e}", out.join("summary.json").display()));
+    (summary, err)
+}
+
 /// The maximum resident set size `/usr/bin/time -v` printed, KiB.
 pub fn max_rss_kb(stderr: &str) -> Option<f64> {
     stderr
