@@ -409,6 +409,7 @@ mod tests {
         let only_stats = "stages.run=[\"stats\"]";
         assert!(err(&[only_stats, "segment.context_m=-1"]).contains("segment.context_m"));
         assert!(err(&[only_stats, "label.context_m=-1"]).contains("label"));
+        assert!(err(&[only_stats, "label.ground.context_m=nan"]).contains("ground.context_m"));
         assert!(err(&[only_stats, "ground.nonground_class=300"]).contains("nonground_class"));
         // The list: known names, once each, prerequisites first.
         assert!(err(&["stages.run=[\"grund\"]"]).contains("unknown stage \"grund\""));

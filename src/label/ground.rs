@@ -16,6 +16,10 @@ pub struct GroundLabelParams {
     pub k: usize,
     /// Neighbourhood radius, metres.
     pub radius_m: f64,
+    /// Ground points farther than this outside a tile's core get no subclass there (their
+    /// neighbours, normals and regions are most of the label stage's work); capped by
+    /// `label.context_m`, which the cheaper object labelling uses.
+    pub context_m: f64,
     /// Largest angle between the normals of neighbouring points in one region, degrees
     /// (document: 45).
     pub angle_deg: f64,
@@ -59,6 +63,7 @@ impl Default for GroundLabelParams {
         GroundLabelParams {
             k: 12,
             radius_m: 0.35,
+            context_m: 2.0,
             angle_deg: 45.0,
             curvature: 0.05,
             colour_region: 12.0,

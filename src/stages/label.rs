@@ -83,10 +83,13 @@ impl LabelSection {
     pub fn validate(&self) -> Result<()> {
         let g = &self.ground;
         let positive = g.radius_m.is_finite() && g.radius_m > 0.0;
-        let non_negative = self.context_m.is_finite() && self.context_m >= 0.0;
+        let non_negative = [self.context_m, g.context_m]
+            .iter()
+            .all(|c| c.is_finite() && *c >= 0.0);
         if g.k < 3 || !positive || !non_negative {
             return Err(Error::Config(
-                "label: ground.k must be >= 3, ground.radius_m > 0 and context_m >= 0".into(),
+                "label: ground.k must be >= 3, ground.radius_m > 0, context_m and ground.context_m >= 0"
+                    .into(),
             ));
         }
         Ok(())
@@ -189,19 +192,31 @@ impl Stage for LabelStage {
             )));
         }
         let rl = layout.record_len;
-        let zone = tile.context_zone(self.section.context_m);
         let n = tile.len();
         let classes: Vec<u8> = tile
             .records
             .chunks_exact(rl)
             .map(|r| layout.classification(r))
             .collect();
-        let in_zone: Vec<bool> = tile.xyz.iter().map(|p| zone.contains(p[0], p[1])).collect();
+        let in_zone = tile.context_mask(self.section.context_m);
+        let ground_context = self.section.ground.context_m.min(self.section.context_m);
+        let in_ground_zone = tile.context_mask(ground_context);
         let is_ground: Vec<bool> = classes.iter().map(|&c| c == 2).collect();
-        report.worked_on(self.name(), in_zone.iter().filter(|&&z| z).count());
+        let worked = (0..n)
+            .filter(|&i| {
+                if is_ground[i] {
+                    in_ground_zone[i]
+                } else {
+                    in_zone[i]
+                }
+            })
+            .count();
+        report.worked_on(self.name(), worked);
 
         // Ground subclasses.
-        let gidx: Vec<usize> = (0..n).filter(|&i| is_ground[i] && in_zone[i]).collect();
+        let gidx: Vec<usize> = (0..n)
+            .filter(|&i| is_ground[i] && in_ground_zone[i])
+            .collect();
         let mut new_class = classes.clone();
         // Seconds: neighbours, normals, colour, ground labelling, objects.
         let mut times = [0.0f64; 5];

@@ -125,12 +125,12 @@ impl Stage for SegmentStage {
         report: &mut TileReport,
     ) -> Result<()> {
         let rl = layout.record_len;
-        let zone = tile.context_zone(self.section.context_m);
+        let near = tile.context_mask(self.section.context_m);
         let mask: Vec<bool> = tile
             .records
             .chunks_exact(rl)
-            .zip(&tile.xyz)
-            .map(|(rec, p)| {
+            .zip(near)
+            .map(|(rec, near)| {
                 let c = layout.classification(rec);
                 let noise = c == 7 || c == 18;
                 let wanted = match self.section.points {
@@ -138,7 +138,7 @@ impl Stage for SegmentStage {
                     SegmentPoints::Ground => c == 2,
                     SegmentPoints::All => !noise,
                 };
-                wanted && zone.contains(p[0], p[1])
+                wanted && near
             })
             .collect();
         report.worked_on(self.name(), mask.iter().filter(|&&m| m).count());
