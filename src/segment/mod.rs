@@ -30,6 +30,7 @@
 
 pub mod features;
 pub mod grow;
+pub mod multicue;
 pub mod neighbours;
 pub mod seed;
 

@@ -1,0 +1,321 @@
+//! Integration of the cues' segmentations (paper §2.5).
+//!
+//! Repeatedly the largest remaining segment among all cues, by 3-D coverage `R ≈ Σ ρ`
+//! (eq. 6), is taken; if its within-segment dispersion (RMS distance of its pixels' cue
+//! values from their mean, in the cue's units) is acceptable it becomes a segment of the
+//! result, and its pixels are removed from every cue. A segment of another cue that lost
+//! pixels is regrouped into its connected remainders, each with its coverage and dispersion
+//! recomputed. This runs until the largest remaining segment covers less than
+//! `min_coverage`.
+//!
+//! Regrouping is lazy and exact: a segment's coverage only shrinks when pixels are taken, so
+//! the heap's key is an upper bound; a segment popped with pixels gone is regrouped and its
+//! pieces pushed back, and a segment popped intact is truly the largest.
+
+use std::collections::BinaryHeap;
+
+use super::cues::same_surface;
+use super::image::RangeImage;
+use super::meanshift::Jump;
+
+/// One cue's segmentation as the integration takes it.
+pub struct CueSegments<'a> {
+    /// Values per pixel (dimension `dim`, flattened), for the dispersion.
+    pub values: &'a [f32],
+    /// Dimension of a value.
+    pub dim: usize,
+    /// Segment label per pixel (0 = none).
+    pub labels: Vec<u32>,
+    /// Largest acceptable dispersion, cue units.
+    pub max_dispersion: f32,
+}
+
+/// How the integration ends and what it keeps.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Rules {
+    /// Stop when the largest remaining segment covers less than this (Σ range, metres).
+    pub min_coverage: f32,
+    /// Segments with fewer pixels are not accepted.
+    pub min_pixels: usize,
+}
+
+/// Integrated result.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Integrated {
+    /// Segment per pixel, 1.. in order of acceptance (0 = none).
+    pub labels: Vec<u32>,
+    /// Segments accepted.
+    pub segments: u32,
+    /// Accepted segments per cue (in the caller's cue order).
+    pub from_cue: Vec<u32>,
+    /// Candidates rejected for their dispersion.
+    pub rejected: u32,
+    /// Segments regrouped after losing pixels.
+    pub regrouped: u32,
+}
+
+#[derive(PartialEq)]
+struct Cand {
+    coverage: f32,
+    cue: usize,
+    seg: u32,
+}
+impl Eq for Cand {}
+impl PartialOrd for Cand {
+    fn partial_cmp(&self, o: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(o))
+    }
+}
+impl Ord for Cand {
+    fn cmp(&self, o: &Self) -> std::cmp::Ordering {
+        // Largest coverage first; ties by cue, then lower segment id (deterministic).
+        self.coverage
+            .total_cmp(&o.coverage)
+            .then_with(|| o.cue.cmp(&self.cue))
+            .then_with(|| o.seg.cmp(&self.seg))
+    }
+}
+
+/// Integrates the cues' segmentations of `img`.
+pub fn integrate(
+    img: &RangeImage,
+    cues: &mut [CueSegments],
+    rules: Rules,
+    jump: Jump,
+) -> Integrated {
+    let n = img.len();
+    let mut owner = vec![0u32; n];
+    // Pixels of each segment of each cue.
+    let mut members: Vec<Vec<Vec<u32>>> = cues
+        .iter()
+        .map(|c| {
+            let max = c.labels.iter().copied().max().unwrap_or(0) as usize;
+            let mut m = vec![Vec::new(); max + 1];
+            for (i, &l) in c.labels.iter().enumerate() {
+                if l > 0 {
+                    m[l as usize].push(i as u32);
+                }
+            }
+            m
+        })
+        .collect();
+    let mut heap = BinaryHeap::new();
+    for (k, m) in members.iter().enumerate() {
+        for (s, px) in m.iter().enumerate().skip(1) {
+            if !px.is_empty() {
+                heap.push(Cand {
+                    coverage: coverage(img, px),
+                    cue: k,
+                    seg: s as u32,
+                });
+            }
+        }
+    }
+    let mut out = Integrated {
+        labels: Vec::new(),
+        segments: 0,
+        from_cue: vec![0; cues.len()],
+        rejected: 0,
+        regrouped: 0,
+    };
+    let mut stamp = vec![0u32; n];
+    let mut stamp_now = 0u32;
+    while let Some(c) = heap.pop() {
+        if c.coverage < rules.min_coverage {
+            break;
+        }
+        let px = std::mem::take(&mut members[c.cue][c.seg as usize]);
+        let left: Vec<u32> = px
+            .iter()
+            .copied()
+            .filter(|&p| owner[p as usize] == 0)
+            .collect();
+        if left.len() < px.len() {
+            // Lost pixels: regroup the remainder into connected pieces, push them back.
+            out.regrouped += 1;
+            stamp_now += 1;
+            for &p in &left {
+                stamp[p as usize] = stamp_now;
+            }
+            for piece in pieces(img, &left, &mut stamp, stamp_now, jump) {
+                let id = members[c.cue].len() as u32;
+                for &p in &piece {
+                    cues[c.cue].labels[p as usize] = id;
+                }
+                heap.push(Cand {
+                    coverage: coverage(img, &piece),
+                    cue: c.cue,
+                    seg: id,
+                });
+                members[c.cue].push(piece);
+            }
+            continue;
+        }
+        if left.len() < rules.min_pixels {
+            continue;
+        }
+        let cue = &cues[c.cue];
+        if dispersion(cue.values, cue.dim, &left) > cue.max_dispersion {
+            out.rejected += 1;
+            continue;
+        }
+        out.segments += 1;
+        out.from_cue[c.cue] += 1;
+        for &p in &left {
+            owner[p as usize] = out.segments;
+        }
+    }
+    out.labels = owner;
+    out
+}
+
+/// Σ range over the pixels (eq. 6 up to the constant angular step).
+fn coverage(img: &RangeImage, px: &[u32]) -> f32 {
+    px.iter().map(|&p| img.range[p as usize]).sum()
+}
+
+/// RMS distance of the pixels' values from their mean.
+fn dispersion(values: &[f32], dim: usize, px: &[u32]) -> f32 {
+    let n = px.len() as f64;
+    let mut mean = vec![0.0f64; dim];
+    for &p in px {
+        for (k, m) in mean.iter_mut().enumerate() {
+            *m += values[p as usize * dim + k] as f64;
+        }
+    }
+    mean.iter_mut().for_each(|m| *m /= n);
+    let mut ss = 0.0f64;
+    for &p in px {
+        for (k, m) in mean.iter().enumerate() {
+            let d = values[p as usize * dim + k] as f64 - m;
+            ss += d * d;
+        }
+    }
+    (ss / n).sqrt() as f32
+}
+
+/// Connected pieces (4-neighbours on one surface) of the pixels stamped `now`; each piece's
+/// pixels in ascending order, pieces by first pixel.
+fn pieces(img: &RangeImage, px: &[u32], stamp: &mut [u32], now: u32, jump: Jump) -> Vec<Vec<u32>> {
+    let mut out = Vec::new();
+    let mut stack = Vec::new();
+    for &start in px {
+        if stamp[start as usize] != now {
+            continue;
+        }
+        stamp[start as usize] = 0;
+        let mut piece = vec![start];
+        stack.push(start as usize);
+        while let Some(i) = stack.pop() {
+            let (r, c) = (i / img.cols, i % img.cols);
+            for (dr, dc) in [(0, 1), (0, -1), (1, 0), (-1, 0)] {
+                if let Some(j) = img.offset(r, c, dr, dc) {
+                    if stamp[j] == now
+                        && same_surface(
+                            img.range[i],
+                            img.range[j],
+                            img.step(dr, dc),
+                            jump.tan_theta,
+                        )
+                    {
+                        stamp[j] = 0;
+                        piece.push(j as u32);
+                        stack.push(j);
+                    }
+                }
+            }
+        }
+        piece.sort_unstable();
+        out.push(piece);
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn image(rows: usize, cols: usize) -> RangeImage {
+        let xyz: Vec<[f32; 3]> = (0..rows * cols)
+            .map(|i| [10.0, (i % cols) as f32 * 0.01, (i / cols) as f32 * 0.01])
+            .collect();
+        let mut img =
+            RangeImage::organised(rows, cols, &xyz, None, super::super::image::Order::RowMajor)
+                .unwrap();
+        img.wraps = false;
+        // Equal ranges: every pixel covers the same, so coverage is pixel count × 10.
+        img.range.iter_mut().for_each(|r| *r = 10.0);
+        img
+    }
+
+    #[test]
+    fn largest_acceptable_segment_first_and_remainders_regrouped() {
+        // 4 × 10 pixels. Cue A: one segment over everything but with a high dispersion
+        // (rejected). Cue B: columns 0-5 one segment (accepted first), 6-9 another. Cue C:
+        // columns 4-9 as one segment: after B's first segment takes 4-5, its remainder 6-9
+        // is regrouped and competes with B's second segment.
+        let (rows, cols) = (4, 10);
+        let img = image(rows, cols);
+        let n = rows * cols;
+        let va: Vec<f32> = (0..n).map(|i| (i % cols) as f32).collect();
+        let vb = vec![0.0f32; n];
+        let vc = vec![0.0f32; n];
+        let lb: Vec<u32> = (0..n).map(|i| if i % cols < 6 { 1 } else { 2 }).collect();
+        let lc: Vec<u32> = (0..n).map(|i| if i % cols >= 4 { 1 } else { 0 }).collect();
+        let mut cues = vec![
+            CueSegments {
+                values: &va,
+                dim: 1,
+                labels: vec![1; n],
+                max_dispersion: 1.0,
+            },
+            CueSegments {
+                values: &vb,
+                dim: 1,
+                labels: lb,
+                max_dispersion: 1.0,
+            },
+            CueSegments {
+                values: &vc,
+                dim: 1,
+                labels: lc,
+                max_dispersion: 1.0,
+            },
+        ];
+        let rules = Rules {
+            min_coverage: 1.0,
+            min_pixels: 2,
+        };
+        let jump = Jump { tan_theta: 0.1 };
+        let out = integrate(&img, &mut cues, rules, jump);
+        assert_eq!(out.segments, 2);
+        assert_eq!(out.rejected, 1);
+        assert!(out.regrouped >= 1);
+        for i in 0..n {
+            let want = if i % cols < 6 { 1 } else { 2 };
+            assert_eq!(out.labels[i], want, "pixel {i}");
+        }
+        // B's second segment (cue 1) ties C's remainder (cue 2) in coverage: the lower cue
+        // index wins.
+        assert_eq!(out.from_cue, vec![0, 2, 0]);
+    }
+
+    #[test]
+    fn small_segments_end_the_integration() {
+        let img = image(2, 4);
+        let v = vec![0.0f32; 8];
+        let mut cues = vec![CueSegments {
+            values: &v,
+            dim: 1,
+            labels: vec![1, 1, 1, 1, 2, 2, 3, 3],
+            max_dispersion: 1.0,
+        }];
+        let rules = Rules {
+            min_coverage: 25.0,
+            min_pixels: 1,
+        };
+        let out = integrate(&img, &mut cues, rules, Jump { tan_theta: 0.1 });
+        assert_eq!(out.segments, 1);
+        assert_eq!(out.labels, vec![1, 1, 1, 1, 0, 0, 0, 0]);
+    }
+}
