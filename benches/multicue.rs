@@ -183,7 +183,10 @@ fn run(path: &Path, pool: &rayon::ThreadPool) {
         }
         rejected += seg.integrated.rejected;
         // Region growing on the valid points of the same scan.
-        let idx: Vec<usize> = (0..s.xyz.len()).filter(|&i| img.valid(i)).collect();
+        // The points in the image (pixel order and point order differ for column-major
+        // clouds).
+        let in_image = img.to_points(&vec![1; img.len()], s.xyz.len());
+        let idx: Vec<usize> = (0..s.xyz.len()).filter(|&i| in_image[i] == 1).collect();
         let pts: Vec<[f64; 3]> = idx.iter().map(|&i| s.xyz[i].map(|v| v as f64)).collect();
         let rgb: Option<Vec<[u16; 3]>> =
             s.rgb.as_ref().map(|c| idx.iter().map(|&i| c[i]).collect());
@@ -216,8 +219,7 @@ fn run(path: &Path, pool: &rayon::ThreadPool) {
                     .collect();
             }
             for (k, (_, cl)) in seg.cue_labels.iter().enumerate() {
-                // Pixel labels are point labels for an organised scan (pixel i = point i).
-                let single = single_cue_labels(cl, p.min_points);
+                let single = img.to_points(&single_cue_labels(cl, p.min_points), s.xyz.len());
                 cues[k].add(&t, &pick(&single));
             }
         }

@@ -92,6 +92,17 @@ impl RangeImage {
         let (a, b) = (dr as f32 * self.row_step, dc as f32 * self.col_step);
         (a * a + b * b).sqrt()
     }
+    /// Per-pixel values (`pixel[i]` for pixel `i`) as per-point values of the scan's `n`
+    /// points; 0 for points in no pixel (no return, or the farther of two in one pixel).
+    pub fn to_points(&self, pixel: &[u32], n: usize) -> Vec<u32> {
+        let mut out = vec![0u32; n];
+        for (&p, &v) in self.point.iter().zip(pixel) {
+            if p != NONE && (p as usize) < n {
+                out[p as usize] = v;
+            }
+        }
+        out
+    }
     /// Pixels with a return.
     pub fn valid_count(&self) -> usize {
         self.range.iter().filter(|&&r| r > 0.0).count()

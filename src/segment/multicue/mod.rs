@@ -179,13 +179,7 @@ pub struct ScanSegmentation {
 impl ScanSegmentation {
     /// Segment per input point of the scan (`n` points; 0 for points not in the image).
     pub fn point_labels(&self, img: &RangeImage, n: usize) -> Vec<u32> {
-        let mut out = vec![0u32; n];
-        for (px, &p) in img.point.iter().enumerate() {
-            if p != image::NONE && (p as usize) < n {
-                out[p as usize] = self.pixel_labels[px];
-            }
-        }
-        out
+        img.to_points(&self.pixel_labels, n)
     }
 }
 
