@@ -289,10 +289,10 @@ impl Tile {
     }
     /// The points a stage with context `context_m` works on: the core points and the buffer
     /// points within that context of a core point ([`near_points`]), as far as the buffer
-    /// reaches. Measured against the core's points rather than its rectangle: a tile whose
-    /// core holds a few stray points (the end of a drive) or only one side of a street would
-    /// otherwise work on the whole strip around its rectangle for nothing (the demo's two
-    /// 10-point tiles each labelled ~140 k context points).
+    /// reaches. Measured against the core's points rather than its rectangle, so a tile
+    /// whose core the data crosses only in part (a drive's curve or end) does not work on the
+    /// strip around the empty rest of its rectangle. (On the demo it changes little: its
+    /// 3- and 10-point end tiles hold points on the street's centre line.)
     pub fn context_mask(&self, context_m: f64) -> Vec<bool> {
         let c = stage_context_m(context_m, self.buffer_m);
         near_points(&self.xyz, self.n_core, self.context_zone(context_m), c)

@@ -33,7 +33,8 @@ pub struct LabelSection {
     /// Blocks/polygons with fewer coloured points are not samples.
     #[serde(default = "default_min_sample")]
     pub min_sample_points: u64,
-    /// Points farther than this outside the core are context only (capped by the tile buffer).
+    /// Points farther than this outside the core are not labelled (capped by the tile buffer);
+    /// the object labels use all of it, the ground subclasses `ground.context_m` of it.
     #[serde(default = "default_context")]
     pub context_m: f64,
     /// Ground subclass parameters.
