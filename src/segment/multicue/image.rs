@@ -380,6 +380,19 @@ fn range_of(p: &[f32; 3]) -> f32 {
 pub(crate) mod tests {
     use super::*;
 
+    /// A flat `rows × cols` image for the mean-shift and integration tests: every pixel at
+    /// range 10 (so every pixel covers the same), no wrap, beams 0.001 rad apart.
+    pub(crate) fn flat_image(rows: usize, cols: usize) -> RangeImage {
+        let xyz: Vec<[f32; 3]> = (0..rows * cols)
+            .map(|i| [10.0, (i % cols) as f32 * 0.01, (i / cols) as f32 * 0.01])
+            .collect();
+        let mut img = RangeImage::organised(rows, cols, &xyz, None, Order::RowMajor).unwrap();
+        img.wraps = false;
+        (img.row_step, img.col_step) = (0.001, 0.001);
+        img.range.iter_mut().for_each(|r| *r = 10.0);
+        img
+    }
+
     /// A scan of `rows` rings 1° apart from +3° down and `cols` columns of the plane z = -2
     /// and a wall x = 5 (whichever is hit first along each ray, up to 80 m), in sensor frame.
     pub(crate) fn plane_and_wall(rows: usize, cols: usize) -> Vec<[f32; 3]> {

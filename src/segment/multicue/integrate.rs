@@ -235,18 +235,7 @@ fn pieces(img: &RangeImage, px: &[u32], stamp: &mut [u32], now: u32, jump: Jump)
 mod tests {
     use super::*;
 
-    fn image(rows: usize, cols: usize) -> RangeImage {
-        let xyz: Vec<[f32; 3]> = (0..rows * cols)
-            .map(|i| [10.0, (i % cols) as f32 * 0.01, (i / cols) as f32 * 0.01])
-            .collect();
-        let mut img =
-            RangeImage::organised(rows, cols, &xyz, None, super::super::image::Order::RowMajor)
-                .unwrap();
-        img.wraps = false;
-        // Equal ranges: every pixel covers the same, so coverage is pixel count × 10.
-        img.range.iter_mut().for_each(|r| *r = 10.0);
-        img
-    }
+    use crate::segment::multicue::image::tests::flat_image as image;
 
     #[test]
     fn largest_acceptable_segment_first_and_remainders_regrouped() {

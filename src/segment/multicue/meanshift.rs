@@ -191,17 +191,7 @@ impl UnionFind {
 mod tests {
     use super::*;
 
-    fn flat_image(rows: usize, cols: usize) -> RangeImage {
-        let xyz: Vec<[f32; 3]> = (0..rows * cols)
-            .map(|i| [10.0, (i % cols) as f32 * 0.01, (i / cols) as f32 * 0.01])
-            .collect();
-        let mut img =
-            RangeImage::organised(rows, cols, &xyz, None, super::super::image::Order::RowMajor)
-                .unwrap();
-        img.wraps = false;
-        (img.row_step, img.col_step) = (0.001, 0.001);
-        img
-    }
+    use crate::segment::multicue::image::tests::flat_image;
 
     #[test]
     fn two_noisy_levels_give_two_segments() {
