@@ -148,6 +148,9 @@ pub struct RecordLayout {
     pub transforms: Vector<Transform>,
     /// Bytes per record.
     pub record_len: usize,
+    /// The extra-bytes attributes of the records (offsets from the start of the extra
+    /// bytes), as the inputs' extra-bytes record describes them; empty when unknown.
+    pub extras: Vec<ExtraField>,
 }
 
 impl RecordLayout {
@@ -174,7 +177,18 @@ impl RecordLayout {
             record_len: format.len() as usize,
             format,
             transforms,
+            extras: Vec::new(),
         }
+    }
+
+    /// Byte offset in a record of the extra-bytes attribute `name`, and its description.
+    pub fn extra(&self, name: &str) -> Option<(usize, &ExtraField)> {
+        let start = self.record_len - usize::from(self.format.extra_bytes);
+        self.extras
+            .iter()
+            .find(|f| f.name == name)
+            .filter(|f| f.offset + f.size <= usize::from(self.format.extra_bytes))
+            .map(|f| (start + f.offset, f))
     }
 
     /// Decodes x, y, z of one record.
@@ -442,4 +456,33 @@ mod tests {
         assert_eq!(near_points(&xyz, 1, core, 0.0), [true, false, false, false]);
         assert_eq!(near_points(&xyz, 0, zone, 2.0), [false; 4]);
     }
+}
+
+/// One scan as a sensor delivers it: `rows × cols` points in the sensor frame (rows = 1 for an
+/// unorganised scan), with optional 16-bit colour and ring numbers.
+#[derive(Debug, Clone, Copy)]
+pub struct ScanPoints<'a> {
+    /// Rows (rings) of an organised scan; 1 for an unorganised one.
+    pub rows: usize,
+    /// Columns.
+    pub cols: usize,
+    /// Sensor-frame coordinates; non-finite for missing returns.
+    pub xyz: &'a [[f32; 3]],
+    /// 16-bit RGB per point, when the scan has colour.
+    pub rgb: Option<&'a [[u16; 3]]>,
+    /// Ring number per point, when the scan has them: tells row- from column-major layouts.
+    pub ring: Option<&'a [u32]>,
+}
+
+/// One attribute described by an extra-bytes VLR.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ExtraField {
+    /// Attribute name.
+    pub name: String,
+    /// Data type code (0 = opaque bytes, 1..=10 scalars, 11..=30 deprecated arrays).
+    pub data_type: u8,
+    /// Byte offset from the start of the extra bytes of a record.
+    pub offset: usize,
+    /// Size in bytes.
+    pub size: usize,
 }

@@ -12,18 +12,7 @@ pub const TYPE_U32: u8 = 5;
 /// Data type code of an unsigned 64-bit attribute.
 pub const TYPE_U64: u8 = 7;
 
-/// One attribute described by an extra-bytes VLR.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct ExtraField {
-    /// Attribute name.
-    pub name: String,
-    /// Data type code (0 = opaque bytes, 1..=10 scalars, 11..=30 deprecated arrays).
-    pub data_type: u8,
-    /// Byte offset from the start of the extra bytes of a record.
-    pub offset: usize,
-    /// Size in bytes.
-    pub size: usize,
-}
+pub use crate::model::ExtraField;
 
 /// A descriptor for a scalar attribute of `data_type` (1..=10).
 pub fn descriptor(data_type: u8, name: &str, description: &str) -> Vec<u8> {

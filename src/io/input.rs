@@ -590,7 +590,10 @@ fn assemble(files: Vec<InputFile>, point_format: Option<u8>) -> Result<InputSet>
         transforms.y.scale = transforms.y.scale.min(t.y.scale);
         transforms.z.scale = transforms.z.scale.min(t.z.scale);
     }
-    let layout = RecordLayout::new(format, transforms);
+    let mut layout = RecordLayout::new(format, transforms);
+    layout.extras = eb(first)
+        .map(|d| crate::io::extra::fields(&d))
+        .unwrap_or_default();
     let total_points = files.iter().map(|f| f.points).sum();
     Ok(InputSet {
         template: first.header.clone(),

@@ -118,10 +118,21 @@ fn run_scoped(
     let inputs = crate::io::input::expand_paths_excluding(inputs, &[out_dir.to_path_buf()])?;
     // MCAP drives are decoded and georeferenced first, into LAS parts whose headers carry the
     // exact bounds the tiler needs; the parts are removed when `staged` is dropped.
+    // With `segment.method = "multicue"` every scan is segmented while it is decoded (where
+    // the scan's image structure exists); the segment stage then ties the scans' segments.
+    let mut mcap = cfg.mcap.clone();
+    mcap.scan_segments = crate::stages::segment::scan_segmenter(&cfg.stages.run, &cfg.sections)?;
+    if mcap.scan_segments.is_some() && !inputs.iter().all(|f| crate::io::mcap::is_mcap(f)) {
+        let other = inputs.iter().find(|f| !crate::io::mcap::is_mcap(f));
+        return Err(Error::Config(format!(
+            "segment.method = \"multicue\" segments the scans of MCAP drives; {} is not one (use method = \"region_growing\" for LAS/LAZ/PCD input)",
+            other.map(|f| f.display().to_string()).unwrap_or_default()
+        )));
+    }
     let staged = crate::io::mcap::stage_inputs(
         &inputs,
         &work_base.join("mcap"),
-        &cfg.mcap,
+        &mcap,
         cfg.pipeline.threads,
     )?;
     let plan = RunPlan::resolve(cfg, stages, &staged.paths, &work_base)?;

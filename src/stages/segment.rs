@@ -9,8 +9,21 @@
 use super::stage::{parse_section, Attribute, Stage, StageSpec, TileReport};
 use crate::error::{Error, Result};
 use crate::model::{RecordLayout, SegmentRow, Tile};
+use crate::segment::multicue::{ties, MulticueParams};
 use crate::segment::{segment_at, SegParams};
 use serde::Deserialize;
+
+/// The segmentation method.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SegmentMethod {
+    /// Planar + colour region growing on the tile's points (any input).
+    #[default]
+    RegionGrowing,
+    /// Multi-cue segmentation of each scan while an MCAP drive is decoded, the scans'
+    /// segments tied into world segments per tile ([`crate::segment::multicue`]).
+    Multicue,
+}
 
 /// Which points take part in the segmentation.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
@@ -39,6 +52,15 @@ pub struct SegmentSection {
     pub context_m: f64,
     /// Region-growing parameters.
     pub params: SegParams,
+    /// The method.
+    #[serde(default)]
+    pub method: SegmentMethod,
+    /// Multi-cue parameters (`method = "multicue"`).
+    #[serde(default)]
+    pub multicue: MulticueParams,
+    /// How scan segments are tied into world segments (`method = "multicue"`).
+    #[serde(default)]
+    pub tie: ties::TieParams,
 }
 
 fn default_seg_context() -> f64 {
@@ -57,6 +79,8 @@ impl SegmentSection {
         self.params
             .validate()
             .map_err(|e| Error::Config(format!("segment.params: {e}")))?;
+        self.multicue.validate().map_err(Error::Config)?;
+        self.tie.validate().map_err(Error::Config)?;
         if !(self.context_m.is_finite() && self.context_m >= 0.0) {
             return Err(Error::Config(format!(
                 "segment.context_m must be >= 0, got {}",
@@ -93,6 +117,165 @@ impl SegmentStage {
     }
 }
 
+/// The scan segmenter the MCAP conversion runs when `stages.run` segments with
+/// `method = "multicue"` (None otherwise).
+pub fn scan_segmenter(
+    run: &[String],
+    sections: &toml::Table,
+) -> Result<Option<std::sync::Arc<dyn crate::io::mcap::ScanSegmenter>>> {
+    if !run.iter().any(|r| r == NAME) {
+        return Ok(None);
+    }
+    let raw = sections
+        .get(NAME)
+        .cloned()
+        .unwrap_or_else(|| toml::Value::Table(toml::Table::new()));
+    let section: SegmentSection = parse_section(NAME, &raw)?;
+    Ok(match section.method {
+        SegmentMethod::Multicue => Some(std::sync::Arc::new(section.multicue)),
+        SegmentMethod::RegionGrowing => None,
+    })
+}
+
+/// Sets the tile's per-point segments and its table (the segments with core points); returns
+/// the core points segmented.
+fn set_table(tile: &mut Tile, labels: &[u32], segments: &[crate::model::SegmentInfo]) -> usize {
+    let mut core_n = vec![0usize; segments.len() + 1];
+    for &l in &labels[..tile.n_core] {
+        core_n[l as usize] += 1;
+    }
+    tile.segment_table = segments
+        .iter()
+        .filter(|s| core_n[s.id as usize] > 0)
+        .map(|s| SegmentRow {
+            info: s.clone(),
+            core_points: core_n[s.id as usize],
+        })
+        .collect();
+    tile.n_core - core_n[0]
+}
+
+/// Plane, spread and mean colour of each segment `1..=k` of `labels` (coordinates relative to
+/// `origin` while summed, the plane offset in input coordinates).
+fn describe(
+    xyz: &[[f64; 3]],
+    labels: &[u32],
+    k: usize,
+    rgb: Option<(&[u8], usize, usize)>,
+    origin: [f64; 3],
+) -> Vec<crate::model::SegmentInfo> {
+    use crate::segment::features::Moments;
+    let mut mom: Vec<Moments> = vec![Moments::new(origin); k];
+    let mut csum = vec![[0.0f64; 3]; k];
+    let eight_bit = rgb.is_some_and(|(recs, rl, o)| {
+        recs.chunks_exact(rl)
+            .all(|r| (0..3).all(|c| r[o + 2 * c + 1] == 0))
+    });
+    for (i, &l) in labels.iter().enumerate() {
+        if l == 0 {
+            continue;
+        }
+        let s = l as usize - 1;
+        mom[s].add(&xyz[i]);
+        if let Some((recs, rl, o)) = rgb {
+            let r = &recs[i * rl..(i + 1) * rl];
+            for (c, sum) in csum[s].iter_mut().enumerate() {
+                let v = u16::from_le_bytes([r[o + 2 * c], r[o + 2 * c + 1]]) as f64;
+                *sum += if eight_bit { v } else { v * 255.0 / 65535.0 };
+            }
+        }
+    }
+    mom.iter()
+        .zip(&csum)
+        .enumerate()
+        .map(|(s, (m, cs))| {
+            let (plane, rms) = m.plane().unwrap_or((
+                crate::segment::features::Plane {
+                    n: [0.0, 0.0, 1.0],
+                    d: 0.0,
+                },
+                0.0,
+            ));
+            let nrm = plane.n;
+            crate::model::SegmentInfo {
+                id: s as u32 + 1,
+                n: m.n,
+                normal: nrm,
+                d: plane.d + nrm[0] * origin[0] + nrm[1] * origin[1] + nrm[2] * origin[2],
+                mean_rgb: cs.map(|v| v / m.n.max(1) as f64),
+                rms,
+            }
+        })
+        .collect()
+}
+
+impl SegmentStage {
+    /// `method = "multicue"`: the points' scan segments (segmented while the drive was
+    /// decoded) tied into world segments ([`ties::tie`]) over the context points.
+    fn tie_scans(
+        &self,
+        tile: &mut Tile,
+        layout: &RecordLayout,
+        member: &[bool],
+        report: &mut TileReport,
+    ) -> Result<()> {
+        use crate::io::mcap::SCAN_SEGMENT;
+        let rl = layout.record_len;
+        let Some((off, _)) = layout
+            .extra(SCAN_SEGMENT)
+            .filter(|(_, f)| f.size == 8 && f.data_type == crate::io::extra::TYPE_U64)
+        else {
+            return Err(Error::Stage {
+                tile: tile.name.to_string(),
+                stage: NAME,
+                source: Box::new(Error::Config(format!(
+                    "segment.method = \"multicue\" needs points decoded from an MCAP drive (their \"{SCAN_SEGMENT}\" attribute); these inputs have none: use method = \"region_growing\""
+                ))),
+            });
+        };
+        let values: Vec<u64> = tile
+            .records
+            .chunks_exact(rl)
+            .map(|r| u64::from_le_bytes(r[off..off + 8].try_into().unwrap_or([0; 8])))
+            .collect();
+        // Every point near the core tells what its scan saw; the noise points do not.
+        let near = tile.context_mask(self.section.context_m);
+        let observe: Vec<bool> = tile
+            .records
+            .chunks_exact(rl)
+            .zip(&near)
+            .map(|(r, &n)| n && !matches!(layout.classification(r), 7 | 18))
+            .collect();
+        let t = &layout.transforms;
+        let origin = [t.x.offset, t.y.offset, t.z.offset];
+        let (labels, st) = ties::tie(
+            &tile.xyz,
+            &values,
+            &observe,
+            member,
+            origin,
+            &self.section.tie,
+        );
+        let rgb = layout.rgb_offset().map(|o| (&tile.records[..], rl, o));
+        let segments = describe(&tile.xyz, &labels, st.world_segments, rgb, origin);
+        let segmented = set_table(tile, &labels, &segments);
+        report.stats.insert(
+            "segment".into(),
+            serde_json::json!({
+                "method": "multicue",
+                "segments_in_core": tile.segment_table.len(),
+                "core_points_segmented": segmented,
+                "scans": st.scans,
+                "scan_segments": st.scan_segments,
+                "candidate_pairs": st.candidate_pairs,
+                "ties": st.ties,
+            }),
+        );
+        tile.segments = labels;
+        Ok(())
+    }
+}
+
 impl Stage for SegmentStage {
     fn name(&self) -> &'static str {
         NAME
@@ -110,7 +293,14 @@ impl Stage for SegmentStage {
         // segment.bytes_per_point_peak`: 145 B per tile point on the leaves of the 300 m
         // street at 256 MiB (243 B with per-point lists packed into a second copy), so 8 B
         // per neighbour plus 40 B (+25 % slack).
-        8 * self.section.params.k + 40
+        match self.section.method {
+            SegmentMethod::RegionGrowing => 8 * self.section.params.k + 40,
+            // Tying: the points' values (8 B), (voxel, scan, node) entries (16 B), node and
+            // label per point (8 B), the masks, and the segment sums and pair counts, which
+            // grow with segments, not points. Estimated, with slack; not yet measured by
+            // `tests/stage_memory.rs`.
+            SegmentMethod::Multicue => 64,
+        }
     }
     fn bytes_per_tile_point(&self) -> usize {
         // The mask, colour and label arrays over every tile point (1 + 6 + 4 B, and the
@@ -142,6 +332,9 @@ impl Stage for SegmentStage {
             })
             .collect();
         report.worked_on(self.name(), mask.iter().filter(|&&m| m).count());
+        if self.section.method == SegmentMethod::Multicue {
+            return self.tie_scans(tile, layout, &mask, report);
+        }
         let rgb: Option<Vec<[u16; 3]>> = layout.rgb_offset().map(|o| {
             tile.records
                 .chunks_exact(rl)
@@ -167,20 +360,7 @@ impl Stage for SegmentStage {
             stage: "segment",
             source: Box::new(e),
         })?;
-        let mut core_n = vec![0usize; out.segments.len() + 1];
-        for &l in &out.labels[..tile.n_core] {
-            core_n[l as usize] += 1;
-        }
-        tile.segment_table = out
-            .segments
-            .iter()
-            .filter(|s| core_n[s.id as usize] > 0)
-            .map(|s| SegmentRow {
-                info: s.clone(),
-                core_points: core_n[s.id as usize],
-            })
-            .collect();
-        let segmented = tile.n_core - core_n[0];
+        let segmented = set_table(tile, &out.labels, &out.segments);
         report.stats.insert(
             "segment".into(),
             serde_json::json!({

@@ -243,8 +243,8 @@ fn write_in_order(
                 continue;
             };
             let r = match d.outcome {
-                Ok(placed) => {
-                    let r = sink.write(sc, &d.channel, d.point_source_id, &placed);
+                Ok(mut placed) => {
+                    let r = sink.write(sc, &d.channel, d.point_source_id, &mut placed);
                     let _ = free_out_tx.try_send(placed);
                     r
                 }
@@ -418,11 +418,37 @@ impl Sink<'_> {
         schema: &CloudSchema,
         c: &ChannelInfo,
         point_source_id: u16,
-        placed: &Placed,
+        placed: &mut Placed,
     ) -> Result<()> {
         let rep = &mut *self.rep;
         rep.clouds += 1;
         rep.clouds_used += 1;
+        if schema.scan_segment {
+            // The scan's number goes into the high bits of every point's segment value, so
+            // the value names the scan as well as the segment (the number is the cloud's
+            // place in the drive, known only here, in order).
+            let scan = rep.clouds_used << super::fields::SCAN_SEGMENT_BITS;
+            let (eb, at) = (schema.extra_bytes(), schema.cloud_extra_bytes());
+            for rec in placed.extras.chunks_exact_mut(eb) {
+                let v = &mut rec[at..at + 8];
+                let local = u64::from_le_bytes(v.try_into().unwrap_or([0; 8]));
+                v.copy_from_slice(&(scan | local).to_le_bytes());
+            }
+            match &placed.scan_unsegmented {
+                None => {
+                    rep.scans_segmented += 1;
+                    rep.scan_segments += u64::from(placed.scan_segments);
+                }
+                Some(why) => {
+                    rep.scans_unsegmented += 1;
+                    let why = format!(
+                        "topic {}, cloud stamped {}: not segmented: {why}",
+                        c.topic, placed.stamp
+                    );
+                    note(rep, why);
+                }
+            }
+        }
         rep.points_in_clouds += placed.points_in;
         rep.points_nan += placed.nan;
         rep.points_near += placed.near;

@@ -50,7 +50,17 @@ pub struct CloudSchema {
     pub rgb_field: Option<String>,
     /// Extra-bytes attributes, in record order.
     pub extras: Vec<ExtraSpec>,
+    /// Whether records end in the 8-byte [`SCAN_SEGMENT`] attribute (after `extras`).
+    pub scan_segment: bool,
 }
+
+/// Name of the per-scan segment attribute: `scan << 24 | segment`, where `scan` numbers the
+/// clouds written (from 1, in drive order) and `segment` is the segment within the scan
+/// (1.., 0 = none).
+pub const SCAN_SEGMENT: &str = "scan_segment";
+/// Bits of the segment within its scan in a [`SCAN_SEGMENT`] value (a 64-ring × 2048-column
+/// scan has 131,072 pixels, so fewer segments than 2^24).
+pub const SCAN_SEGMENT_BITS: u32 = 24;
 
 /// Accessors of one cloud bound to a schema.
 #[derive(Debug, Clone)]
@@ -145,6 +155,7 @@ impl CloudSchema {
                 || time_field.as_deref() == Some(n)
                 || intensity_field.as_deref() == Some(n)
                 || rgb_field.as_deref() == Some(n)
+                || (p.scan_segments.is_some() && n == SCAN_SEGMENT)
         };
         let mut extras = Vec::new();
         match &p.extra_fields {
@@ -189,11 +200,17 @@ impl CloudSchema {
             intensity_field,
             rgb_field,
             extras,
+            scan_segment: p.scan_segments.is_some(),
         })
     }
 
     /// Bytes of extra attributes per record.
     pub fn extra_bytes(&self) -> usize {
+        self.cloud_extra_bytes() + if self.scan_segment { 8 } else { 0 }
+    }
+
+    /// Bytes of the extra attributes copied from the cloud's own fields.
+    pub fn cloud_extra_bytes(&self) -> usize {
         self.extras.iter().map(|e| e.size).sum()
     }
 
@@ -207,7 +224,7 @@ impl CloudSchema {
 
     /// The extra-bytes VLR describing the extras, if there are any.
     pub fn extra_bytes_vlr(&self) -> Option<las::Vlr> {
-        if self.extras.is_empty() {
+        if self.extras.is_empty() && !self.scan_segment {
             return None;
         }
         let mut data = Vec::new();
@@ -216,6 +233,13 @@ impl CloudSchema {
                 las_type(e.datatype),
                 &e.name,
                 "PointCloud2 field",
+            ));
+        }
+        if self.scan_segment {
+            data.extend(extra::descriptor(
+                extra::TYPE_U64,
+                SCAN_SEGMENT,
+                "scan << 24 | segment in scan",
             ));
         }
         Some(las::Vlr {

@@ -43,4 +43,5 @@ pub use reader::McapSource;
 pub use report::McapReport;
 
 mod params;
+pub use fields::{SCAN_SEGMENT, SCAN_SEGMENT_BITS};
 pub use params::*;

@@ -41,6 +41,14 @@ pub enum ExtraFields {
     Names(Vec<String>),
 }
 
+/// Segments one scan while it is decoded: the segment per point (0 = none, 1..) and the
+/// number of segments, or why the scan cannot be segmented. The conversion knows no
+/// segmentation method; the run hands one in (`segment.method = "multicue"`).
+pub trait ScanSegmenter: Send + Sync + std::fmt::Debug {
+    /// Segments `scan`.
+    fn segment(&self, scan: crate::model::ScanPoints<'_>) -> Result<(Vec<u32>, u32), String>;
+}
+
 /// `[mcap]` settings.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -88,6 +96,11 @@ pub struct McapParams {
     pub on_error: OnError,
     /// Points per temporary LAS part.
     pub part_points: u64,
+    /// Segment each scan while it is decoded ([`crate::segment::multicue`]) and keep the
+    /// per-scan segments as the `scan_segment` attribute. Not a key of `[mcap]`: set by the
+    /// run when `segment.method = "multicue"`.
+    #[serde(skip)]
+    pub scan_segments: Option<std::sync::Arc<dyn ScanSegmenter>>,
 }
 
 impl McapParams {

@@ -37,6 +37,10 @@ pub struct Placed {
     pub deskewed: bool,
     /// Extra fields of the layout this cloud lacks (written as 0).
     pub missing: Vec<String>,
+    /// Segments found in the scan (when scans are segmented).
+    pub scan_segments: u32,
+    /// Why the scan could not be segmented (its points carry segment 0), when it could not.
+    pub scan_unsegmented: Option<String>,
 }
 
 impl Placed {
@@ -49,6 +53,8 @@ impl Placed {
         self.nan = 0;
         self.near = 0;
         self.deskewed = false;
+        self.scan_segments = 0;
+        self.scan_unsegmented = None;
     }
 }
 
@@ -182,6 +188,12 @@ impl<'a> Placer<'a> {
         let mut pose = cloud_pose;
         let off = p.world_offset;
         let eb = self.schema.extra_bytes();
+        // The scan is segmented in its own (sensor) frame, before any point is dropped, so the
+        // image keeps the cloud's layout.
+        let scan_labels = match (&p.scan_segments, self.schema.scan_segment) {
+            (Some(seg), true) => Some(segment_cloud(&cloud, &b, seg.as_ref(), out)),
+            _ => None,
+        };
         for i in 0..cloud.len() {
             let pt = cloud.point(i);
             let (x, y, z) = (ax.get(pt), ay.get(pt), az.get(pt));
@@ -243,8 +255,67 @@ impl<'a> Placer<'a> {
                     None => out.extras.extend(std::iter::repeat_n(0u8, spec.size)),
                 }
             }
+            if let Some(l) = &scan_labels {
+                out.extras.extend(u64::from(l[i]).to_le_bytes());
+            }
             debug_assert_eq!(out.extras.len() - before, eb);
         }
         Ok(())
+    }
+}
+
+/// The per-point segments of `cloud` by the run's [`super::ScanSegmenter`], all 0
+/// when the scan cannot be segmented (the reason goes to `out`).
+fn segment_cloud(
+    cloud: &pointcloud2::PointCloud2,
+    b: &super::fields::Bound,
+    seg: &dyn super::ScanSegmenter,
+    out: &mut Placed,
+) -> Vec<u32> {
+    use crate::model::ScanPoints;
+    let n = cloud.len();
+    let [ax, ay, az] = b.xyz;
+    let mut xyz = Vec::with_capacity(n);
+    let mut rgb = b.rgb.map(|_| Vec::with_capacity(n));
+    let ring_acc = cloud
+        .field("ring")
+        .filter(|f| f.count == 1 && datatype::size(f.datatype).is_some())
+        .map(|f| cloud.accessor(f));
+    let mut ring = ring_acc.map(|_| Vec::with_capacity(n));
+    for i in 0..n {
+        let pt = cloud.point(i);
+        xyz.push([ax.get(pt) as f32, ay.get(pt) as f32, az.get(pt) as f32]);
+        if let (Some(a), Some(v)) = (&b.rgb, rgb.as_mut()) {
+            v.push(unpack_rgb(a.bits32(pt)));
+        }
+        if let (Some(a), Some(v)) = (&ring_acc, ring.as_mut()) {
+            let r = a.get(pt);
+            v.push(if r.is_finite() && r >= 0.0 {
+                r as u32
+            } else {
+                u32::MAX
+            });
+        }
+    }
+    let scan = ScanPoints {
+        rows: cloud.height as usize,
+        cols: cloud.width as usize,
+        xyz: &xyz,
+        rgb: rgb.as_deref(),
+        ring: ring.as_deref(),
+    };
+    match seg.segment(scan) {
+        Ok((labels, k)) if k < 1 << super::fields::SCAN_SEGMENT_BITS => {
+            out.scan_segments = k;
+            labels
+        }
+        Ok((_, k)) => {
+            out.scan_unsegmented = Some(format!("{k} segments, more than a scan may have"));
+            vec![0; n]
+        }
+        Err(e) => {
+            out.scan_unsegmented = Some(e.to_string());
+            vec![0; n]
+        }
     }
 }

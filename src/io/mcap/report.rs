@@ -58,6 +58,13 @@ pub struct McapReport {
     pub world_offset: [f64; 3],
     /// CRS note.
     pub crs: String,
+    /// Scans segmented while decoded (`segment.method = "multicue"`).
+    pub scans_segmented: u64,
+    /// Segments found in them.
+    pub scan_segments: u64,
+    /// Scans that could not be segmented (their points carry no segment), with the first
+    /// reasons in `notes`.
+    pub scans_unsegmented: u64,
     /// Temporary LAS parts written.
     pub parts: usize,
     /// Wall time of the conversion, seconds.

@@ -18,11 +18,13 @@ pub mod cues;
 pub mod image;
 pub mod integrate;
 pub mod meanshift;
+pub mod ties;
 
 use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
+pub use crate::model::ScanPoints;
 pub use image::{ImageError, Order, RangeImage, Rings};
 use integrate::{CueSegments, Integrated, Rules};
 use meanshift::{Jump, Kernel};
@@ -324,6 +326,50 @@ pub fn single_cue_labels(labels: &[u32], min_points: usize) -> Vec<u32> {
             id[l as usize]
         })
         .collect()
+}
+
+/// Columns of the spherical projection of an unorganised scan (the 0.18° azimuth step of
+/// 64-beam sensors at 10 Hz).
+pub const SPHERICAL_COLS: usize = 2048;
+
+/// Segments one scan given as points: organised scans (`rows > 1`) in their own layout
+/// (column-major when the ring numbers say so), unorganised ones by spherical projection with
+/// rings found from gaps in elevation. Returns the segment per point (0 = none, 1..) and the
+/// number of segments.
+pub fn segment_points(s: ScanPoints, p: &MulticueParams) -> Result<(Vec<u32>, u32), ImageError> {
+    let n = s.xyz.len();
+    let lab: Option<Vec<[f32; 3]>> = s.rgb.map(|c| {
+        c.iter()
+            .map(|v| {
+                let lab = crate::segment::features::rgb_to_lab(
+                    v.map(|x| x as f64 / 65535.0),
+                    crate::segment::features::LabFormula::Srgb,
+                );
+                lab.map(|x| x as f32)
+            })
+            .collect()
+    });
+    let img = if s.rows > 1 {
+        let order = s
+            .ring
+            .and_then(|r| Order::from_rings(r, s.rows, s.cols))
+            .unwrap_or(Order::RowMajor);
+        RangeImage::organised(s.rows, s.cols, s.xyz, lab.as_deref(), order)?
+    } else {
+        let rings = Rings::Gaps {
+            gap_deg: 0.2,
+            max_rows: 256,
+        };
+        RangeImage::spherical(s.xyz, lab.as_deref(), SPHERICAL_COLS, rings)?.0
+    };
+    let seg = segment_scan(&img, p);
+    Ok((seg.point_labels(&img, n), seg.segments))
+}
+
+impl crate::io::mcap::ScanSegmenter for MulticueParams {
+    fn segment(&self, scan: ScanPoints<'_>) -> Result<(Vec<u32>, u32), String> {
+        segment_points(scan, self).map_err(|e| e.to_string())
+    }
 }
 
 #[cfg(test)]

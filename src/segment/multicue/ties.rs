@@ -1,0 +1,331 @@
+//! Per-scan segments tied into world segments inside a tile.
+//!
+//! Every point decoded from a drive with `segment.method = "multicue"` carries its scan's
+//! segment as `scan << 24 | segment` ([`crate::io::mcap::SCAN_SEGMENT`]). Consecutive scans see
+//! the same surfaces from a few decimetres further on, so the same object appears as one
+//! segment in each; two such segments are the same world segment when they occupy the same
+//! space. Space is a voxel grid: for scans `s` and `t` (consecutive among the scans present in
+//! the tile), segment `a` of `s` and `b` of `t` are joined when
+//! `n_ab ≥ min_shared_voxels` and `n_ab > majority_fraction · max(n_a, n_b)`,
+//! where `n_ab` counts the voxels holding points of both, and `n_a` the voxels of `a` that scan
+//! `t` observed at all (any of its points, segmented or not). That is the rule of the tile
+//! stitching ([`crate::stitch::pairs`]) with voxels for shared points, counted in the space
+//! both scans saw, so a segment is not kept apart just because the next scan sees less of it.
+//! A union–find over the (scan, segment) pairs joins them transitively along the drive; the
+//! tile stitching then joins world segments across tile borders as for region growing.
+
+use super::meanshift::UnionFind;
+use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
+
+use crate::io::mcap::SCAN_SEGMENT_BITS as SEGMENT_BITS;
+
+/// How per-scan segments are tied (`[segment.tie]`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TieParams {
+    /// Voxel edge, metres.
+    pub voxel_m: f64,
+    /// Least shared voxels for a tie.
+    pub min_shared_voxels: usize,
+    /// Shared voxels must exceed this share of the segments' voxels seen by the other scan …
+    pub majority_fraction: f64,
+    /// … of the larger of the two segments ("larger": one-to-one, as the tile stitching), or
+    /// of the smaller ("smaller": a piece lying mostly inside a segment of the next scan joins
+    /// it, so a scan that splits an object does not break its chain along the drive).
+    pub basis: TieBasis,
+}
+
+/// Which segment's seen voxels the shared voxels are compared with.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TieBasis {
+    /// The larger of the two.
+    Larger,
+    /// The smaller of the two.
+    Smaller,
+}
+
+impl Default for TieParams {
+    fn default() -> Self {
+        // 0.5 m: consecutive scans sample a surface at different places (ring spacing ~0.1 m
+        // at 20 m on a 64-ring sensor, the vehicle moving ~1 m between scans), so voxels much
+        // smaller than the ring spacing at range would rarely hold both.
+        TieParams {
+            voxel_m: 0.5,
+            min_shared_voxels: 3,
+            majority_fraction: 0.5,
+            basis: TieBasis::Smaller,
+        }
+    }
+}
+
+impl TieParams {
+    /// Checks ranges.
+    pub fn validate(&self) -> Result<(), String> {
+        if !(self.voxel_m.is_finite() && self.voxel_m > 0.0) {
+            return Err(format!(
+                "segment.tie.voxel_m must be > 0, got {}",
+                self.voxel_m
+            ));
+        }
+        if self.min_shared_voxels == 0 {
+            return Err("segment.tie.min_shared_voxels must be >= 1".into());
+        }
+        if !(self.majority_fraction >= 0.0 && self.majority_fraction < 1.0) {
+            return Err(format!(
+                "segment.tie.majority_fraction must be in [0, 1), got {}",
+                self.majority_fraction
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// What tying found in one tile.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+pub struct TieStats {
+    /// Scans with points in the tile.
+    pub scans: usize,
+    /// Per-scan segments with points in the tile.
+    pub scan_segments: usize,
+    /// Segment pairs of consecutive scans sharing a voxel.
+    pub candidate_pairs: usize,
+    /// Pairs tied.
+    pub ties: usize,
+    /// World segments (after ties) with points in the tile.
+    pub world_segments: usize,
+}
+
+const NONE: u32 = u32::MAX;
+
+/// Ties the per-scan segments of a tile's points into world segments.
+///
+/// `values` are the points' `scan_segment` values (0: the point has none); `observe` the
+/// points whose voxels count as seen by their scan; `member` the points that belong to their
+/// segment (a subset of `observe`, e.g. the non-ground ones). Returns the world segment per
+/// point (0 = none; 1.. numbered by first point) and the figures.
+pub fn tie(
+    xyz: &[[f64; 3]],
+    values: &[u64],
+    observe: &[bool],
+    member: &[bool],
+    origin: [f64; 3],
+    p: &TieParams,
+) -> (Vec<u32>, TieStats) {
+    let n = xyz.len();
+    let local_mask = (1u64 << SEGMENT_BITS) - 1;
+    // Dense scan ranks (drive order) and segment nodes.
+    let mut scans: Vec<u64> = (0..n)
+        .filter(|&i| observe[i] && values[i] != 0)
+        .map(|i| values[i] >> SEGMENT_BITS)
+        .collect();
+    scans.sort_unstable();
+    scans.dedup();
+    let rank = |v: u64| scans.binary_search(&(v >> SEGMENT_BITS)).map(|r| r as u32);
+    let mut node_of: HashMap<u64, u32> = HashMap::new();
+    let mut node_value: Vec<u64> = Vec::new();
+    let mut point_node = vec![NONE; n];
+    // (voxel, scan rank, node) for every observed point.
+    let mut entries: Vec<(u64, u32, u32)> = Vec::with_capacity(n);
+    let inv = 1.0 / p.voxel_m;
+    for i in 0..n {
+        let v = values[i];
+        if !observe[i] || v == 0 || !xyz[i].iter().all(|c| c.is_finite()) {
+            continue;
+        }
+        let Ok(r) = rank(v) else { continue };
+        let node = if member[i] && v & local_mask != 0 {
+            *node_of.entry(v).or_insert_with(|| {
+                node_value.push(v);
+                node_value.len() as u32 - 1
+            })
+        } else {
+            NONE
+        };
+        point_node[i] = node;
+        let q = |c: usize| (((xyz[i][c] - origin[c]) * inv).floor() as i64 & 0x1f_ffff) as u64;
+        entries.push((q(0) | q(1) << 21 | q(2) << 42, r, node));
+    }
+    entries.sort_unstable();
+    entries.dedup();
+    let nodes = node_value.len();
+    let (mut seen_next, mut seen_prev) = (vec![0u32; nodes], vec![0u32; nodes]);
+    let mut shared: HashMap<(u32, u32), u32> = HashMap::new();
+    for vox in entries.chunk_by(|a, b| a.0 == b.0) {
+        // Scan ranks ascend within the voxel: each run is one scan.
+        let runs: Vec<&[(u64, u32, u32)]> = vox.chunk_by(|a, b| a.1 == b.1).collect();
+        for w in runs.windows(2) {
+            let (s, t) = (w[0], w[1]);
+            if t[0].1 != s[0].1 + 1 {
+                continue;
+            }
+            for a in s.iter().filter(|e| e.2 != NONE) {
+                seen_next[a.2 as usize] += 1;
+                for b in t.iter().filter(|e| e.2 != NONE) {
+                    *shared.entry((a.2, b.2)).or_default() += 1;
+                }
+            }
+            for b in t.iter().filter(|e| e.2 != NONE) {
+                seen_prev[b.2 as usize] += 1;
+            }
+        }
+    }
+    let mut uf = UnionFind::new(nodes);
+    let mut pairs: Vec<((u32, u32), u32)> = shared.into_iter().collect();
+    pairs.sort_unstable();
+    let mut ties = 0;
+    for &((a, b), k) in &pairs {
+        let (na, nb) = (seen_next[a as usize], seen_prev[b as usize]);
+        let base = match p.basis {
+            TieBasis::Larger => na.max(nb),
+            TieBasis::Smaller => na.min(nb),
+        } as f64;
+        if k as usize >= p.min_shared_voxels && k as f64 > p.majority_fraction * base {
+            uf.union(a as usize, b as usize);
+            ties += 1;
+        }
+    }
+    let mut world = vec![0u32; nodes];
+    let mut next = 0u32;
+    let mut labels = vec![0u32; n];
+    for (i, &nd) in point_node.iter().enumerate() {
+        if nd == NONE {
+            continue;
+        }
+        let root = uf.find(nd as usize);
+        if world[root] == 0 {
+            next += 1;
+            world[root] = next;
+        }
+        labels[i] = world[root];
+    }
+    let stats = TieStats {
+        scans: scans.len(),
+        scan_segments: nodes,
+        candidate_pairs: pairs.len(),
+        ties,
+        world_segments: next as usize,
+    };
+    (labels, stats)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn v(scan: u64, seg: u64) -> u64 {
+        scan << SEGMENT_BITS | seg
+    }
+
+    /// A wall seen by three scans as segments 1, 2 and 5, and a pole seen by the first two:
+    /// the wall pieces tie, the pole ties with itself only, and a stray contact stays apart.
+    #[test]
+    fn consecutive_scans_tie_by_shared_voxels() {
+        let mut xyz = Vec::new();
+        let mut vals = Vec::new();
+        for (scan, seg) in [(3u64, 1u64), (4, 2), (6, 5)] {
+            for k in 0..40 {
+                xyz.push([k as f64 * 0.25 + 0.01 * scan as f64, 0.0, 1.0]);
+                vals.push(v(scan, seg));
+            }
+        }
+        for (scan, seg) in [(3u64, 2u64), (4, 7)] {
+            for k in 0..10 {
+                xyz.push([20.0, 0.0, k as f64 * 0.5]);
+                vals.push(v(scan, seg));
+            }
+        }
+        // Scan 4 touches the wall's end with one point of another segment.
+        xyz.push([9.8, 0.0, 1.0]);
+        vals.push(v(4, 9));
+        let n = xyz.len();
+        let all = vec![true; n];
+        let (labels, st) = tie(&xyz, &vals, &all, &all, [0.0; 3], &TieParams::default());
+        assert_eq!(st.scans, 3);
+        assert_eq!(st.scan_segments, 6);
+        let wall = labels[0];
+        assert!(labels[..120].iter().all(|&l| l == wall), "{labels:?}");
+        let pole = labels[120];
+        assert!(pole != wall && labels[120..140].iter().all(|&l| l == pole));
+        assert!(labels[140] != wall && labels[140] != pole);
+        assert_eq!(st.world_segments, 3);
+        assert_eq!(wall, 1, "numbered by first point");
+    }
+
+    /// Points without a value, not observed, or not members get no segment; segment 0 of a
+    /// scan is no segment but still shows what the scan saw.
+    #[test]
+    fn non_members_and_unsegmented_points_stay_zero() {
+        let xyz = vec![[0.0, 0.0, 0.0]; 4];
+        let vals = vec![0, v(1, 0), v(1, 3), v(1, 3)];
+        let observe = vec![true, true, true, false];
+        let member = vec![true, true, false, true];
+        let (labels, st) = tie(
+            &xyz,
+            &vals,
+            &observe,
+            &member,
+            [0.0; 3],
+            &TieParams::default(),
+        );
+        assert_eq!(labels, vec![0, 0, 0, 0]);
+        assert_eq!(st.world_segments, 0);
+        assert_eq!(st.scans, 1);
+        let (labels, _) = tie(&[], &[], &[], &[], [0.0; 3], &TieParams::default());
+        assert!(labels.is_empty());
+    }
+
+    /// Scan 2 sees the 20 voxels of scan 1's segment, but only 8 of them as its segment 4
+    /// (the rest unsegmented). One-to-one ("larger"): 8 of 20 is no majority, apart; a lower
+    /// fraction joins them. "smaller": segment 4 lies wholly inside, joined.
+    #[test]
+    fn majority_fraction_and_basis_decide() {
+        let mut xyz = Vec::new();
+        let mut vals = Vec::new();
+        for k in 0..20 {
+            xyz.push([k as f64, 0.0, 0.0]);
+            vals.push(v(1, 1));
+        }
+        for k in 0..20 {
+            xyz.push([k as f64, 0.0, 0.0]);
+            vals.push(v(2, if k < 8 { 4 } else { 0 }));
+        }
+        let all = vec![true; xyz.len()];
+        let with = |basis, majority_fraction| TieParams {
+            basis,
+            majority_fraction,
+            ..TieParams::default()
+        };
+        let (l, st) = tie(
+            &xyz,
+            &vals,
+            &all,
+            &all,
+            [0.0; 3],
+            &with(TieBasis::Larger, 0.5),
+        );
+        assert_eq!(st.ties, 0);
+        assert_ne!(l[0], l[20]);
+        let (l, st) = tie(
+            &xyz,
+            &vals,
+            &all,
+            &all,
+            [0.0; 3],
+            &with(TieBasis::Larger, 0.3),
+        );
+        assert_eq!(st.ties, 1);
+        assert_eq!(l[0], l[20]);
+        let (l, st) = tie(
+            &xyz,
+            &vals,
+            &all,
+            &all,
+            [0.0; 3],
+            &with(TieBasis::Smaller, 0.9),
+        );
+        assert_eq!(st.ties, 1);
+        assert_eq!(l[0], l[20]);
+    }
+}
