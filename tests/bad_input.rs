@@ -252,3 +252,57 @@ fn error_causes_are_printed_once() {
     assert!(err.contains("missing.las"), "{err}");
     assert_eq!(err.matches("No such file").count(), 1, "{err}");
 }
+
+/// Offset of the LASzip VLR's data in a file written by [`write_valid`].
+fn laszip_data(b: &[u8]) -> usize {
+    let mut pos = usize::from(u16::from_le_bytes([b[94], b[95]]));
+    let n = u32::from_le_bytes(b[100..104].try_into().unwrap());
+    for _ in 0..n {
+        let len = usize::from(u16::from_le_bytes([b[pos + 20], b[pos + 21]]));
+        if &b[pos + 2..pos + 16] == b"laszip encoded" {
+            return pos + 54;
+        }
+        pos += 54 + len;
+    }
+    panic!("no LASzip VLR");
+}
+
+/// Regression inputs of `scripts/mutate_cli.py` (issue 23): sizes taken from the file made
+/// `las`/`laz` allocate gigabytes (the process aborted) or panic inside a rayon job (the
+/// process aborted). Each is a clear error now, from `info` and from `run`.
+#[test]
+fn hostile_sizes_and_laszip_records_are_errors_not_aborts() {
+    let d = tempfile::tempdir().unwrap();
+    let full = d.path().join("full.laz");
+    write_valid(&full, 3000);
+    let b = std::fs::read(&full).unwrap();
+    let vlr = laszip_data(&b);
+    let table = {
+        let at = u32::from_le_bytes(b[96..100].try_into().unwrap()) as usize;
+        i64::from_le_bytes(b[at..at + 8].try_into().unwrap()) as usize
+    };
+    // (file name, byte offset, bytes written there, what the error must say)
+    let cases: [(&str, usize, Vec<u8>, &str); 5] = [
+        (
+            "many_chunks.laz",
+            table + 4,
+            0x7fff_ffffu32.to_le_bytes().to_vec(),
+            "claims 2147483647 chunks",
+        ),
+        ("no_items.laz", vlr + 32, vec![0, 0], "no items"),
+        ("item_version.laz", vlr + 38, vec![7, 0], "version 7"),
+        ("item_size.laz", vlr + 36, vec![200, 0], "bytes per point"),
+        ("many_vlrs.laz", 100, vec![0xff; 4], "vlrs"),
+    ];
+    for (name, at, bytes, needle) in cases {
+        let bad = d.path().join(name);
+        let mut m = b.clone();
+        m[at..at + bytes.len()].copy_from_slice(&bytes);
+        std::fs::write(&bad, &m).unwrap();
+        let o = tessera().arg("info").arg(&bad).output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{name}: {err}");
+        assert!(err.contains(name) && err.contains(needle), "{name}: {err}");
+        expect_failure(&bad, needle);
+    }
+}

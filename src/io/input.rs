@@ -388,6 +388,7 @@ fn point_count(path: &Path, raw: &las::raw::Header, present: Present) -> Result<
 /// Opens and validates one input.
 pub fn scan_file(path: &Path, index: usize) -> Result<InputFile> {
     let file_len = sniff(path)?;
+    crate::io::guard::check_las_structure(path, file_len)?;
     let reader = Reader::from_path(path).map_err(|e| Error::las(path, e))?;
     let header = reader.header().clone();
     drop(reader);
@@ -785,9 +786,25 @@ impl RecordSource {
     fn fill(&mut self, out: &mut [u8]) -> std::io::Result<()> {
         match self {
             RecordSource::Las(f) => f.read_exact(out),
-            RecordSource::Laz(d) => d.decompress_many(out),
+            RecordSource::Laz(d) => {
+                std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| d.decompress_many(out)))
+                    .unwrap_or_else(|p| {
+                        Err(std::io::Error::other(format!(
+                            "the LAZ decoder failed: {}",
+                            panic_text(&p)
+                        )))
+                    })
+            }
         }
     }
+}
+
+/// The message of a caught panic.
+fn panic_text(p: &Box<dyn std::any::Any + Send>) -> String {
+    p.downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| p.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "panic".into())
 }
 
 /// Largest LAZ chunk decoded whole, points; files with larger chunks are read through the
@@ -953,9 +970,14 @@ fn read_laz_chunks(
                 byte_count,
             };
             let out = data.resize_for(n as usize);
-            let res = laz::par_decompress(&bytes, out, &vlr, std::slice::from_ref(&entry))
-                .map(|_| data)
-                .map_err(|e| e.to_string());
+            // A panic inside `laz` on hostile data must not take the process down (a panic
+            // in a rayon job aborts): it becomes this chunk's error.
+            let res = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                laz::par_decompress(&bytes, out, &vlr, std::slice::from_ref(&entry))
+            }))
+            .map_err(|p| format!("the LAZ decoder failed: {}", panic_text(&p)))
+            .and_then(|r| r.map_err(|e| e.to_string()))
+            .map(|_| data);
             let _ = tx.send((res, bytes));
         });
         pending.push_back((first, n, rx));

@@ -4,6 +4,7 @@
 pub mod attributes;
 pub mod extra;
 pub mod files;
+pub mod guard;
 pub mod input;
 pub mod laswrite;
 pub mod mcap;

@@ -191,6 +191,7 @@ pub fn from_classified_points(
         ));
     }
     let src = {
+        crate::io::guard::check_path(path)?;
         let r = las::Reader::from_path(path).map_err(|e| Error::las(path, e))?;
         crate::io::attributes::field_source(path, r.header(), field)?
     };
@@ -240,6 +241,7 @@ pub fn from_classified_points(
 
 /// Calls `f` on every point of a LAS/LAZ file, in chunks.
 pub fn for_each_point(path: &Path, mut f: impl FnMut(&las::Point) -> Result<()>) -> Result<()> {
+    crate::io::guard::check_path(path)?;
     let mut r = las::Reader::from_path(path).map_err(|e| Error::las(path, e))?;
     let mut pd = las::PointDataBuilder::new().for_header(r.header()).build();
     while r
