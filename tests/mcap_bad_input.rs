@@ -335,3 +335,66 @@ fn not_an_mcap_and_unknown_frames() {
         "{e}"
     );
 }
+
+/// Fuzzing regressions (issue 23): a length prefix inside a record (the header's profile
+/// string, a chunk's compression string, the summary's records) made the `mcap` crate
+/// allocate up to 4 GiB and the process abort. Each is a clear error or counted damage now.
+#[test]
+fn length_prefixes_past_their_record_are_errors_not_aborts() {
+    let tmp = tempfile::tempdir().unwrap();
+    let full = tmp.path().join("full.mcap");
+    write(&full, &every(50, 1000), &every(100, 900), None);
+    let bytes = std::fs::read(&full).unwrap();
+    // The first record after the magic is the header: opcode, length, profile string.
+    let mut bad = bytes.clone();
+    bad[8 + 9..8 + 13].copy_from_slice(&0xfffe_fffcu32.to_le_bytes());
+    let p = tmp.path().join("header.mcap");
+    std::fs::write(&p, &bad).unwrap();
+    let out = tmp.path().join("out1");
+    let o = tessera(&[], &[&p], &out);
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{e}");
+    assert!(
+        e.contains("header.mcap") && e.contains("header record"),
+        "{e}"
+    );
+    assert!(!e.contains("memory allocation"), "{e}");
+    // Every string length of every top-level record set past its record: never an abort.
+    let mut at = 8usize;
+    let mut k = 0;
+    while at + 9 <= bytes.len() - 8 {
+        let op = bytes[at];
+        let len = u64::from_le_bytes(bytes[at + 1..at + 9].try_into().unwrap()) as usize;
+        // Records whose body starts with a string (header, metadata) or has one after a
+        // fixed part (schema 2, channel 4, chunk 28, chunk index: see the guard).
+        let field = match op {
+            0x01 | 0x0C => Some(0),
+            0x03 => Some(2),
+            0x04 => Some(4),
+            0x06 => Some(28),
+            _ => None,
+        };
+        if let Some(f) = field.filter(|&f| f + 4 <= len) {
+            let mut bad = bytes.clone();
+            bad[at + 9 + f..at + 13 + f].copy_from_slice(&0xffff_ff00u32.to_le_bytes());
+            let p = tmp.path().join(format!("rec{k}.mcap"));
+            std::fs::write(&p, &bad).unwrap();
+            let out = tmp.path().join(format!("out_rec{k}"));
+            let o = tessera(&["--set", "mcap.on_error=\"skip\""], &[&p], &out);
+            let e = stderr(&o);
+            assert!(
+                o.status.code() == Some(0) || (o.status.code() == Some(1) && e.contains("error")),
+                "record 0x{op:02x} at {at}: {:?} {e}",
+                o.status
+            );
+            assert!(
+                !e.contains("memory allocation") && !e.contains("panicked"),
+                "{e}"
+            );
+            no_leftovers(&out);
+            k += 1;
+        }
+        at += 9 + len;
+    }
+    assert!(k >= 3, "{k} records mutated");
+}

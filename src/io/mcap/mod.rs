@@ -28,6 +28,7 @@ pub mod clouds;
 pub mod convert;
 pub mod encode;
 pub mod fields;
+pub mod guard;
 pub mod info;
 pub mod parts;
 pub mod place;

@@ -122,15 +122,32 @@ impl McapSource {
                 ),
             ));
         }
-        let (summary, summary_note) = match mcap::Summary::read(&map) {
-            Ok(Some(s)) => (Some(s), None),
-            Ok(None) => (None, Some("the file has no summary section".to_string())),
+        // Length prefixes are checked before the `mcap` crate allocates by them: here the
+        // header record, which is parsed next.
+        if let Err(e) = super::guard::check_first_record(&map[mcap::MAGIC.len()..]) {
+            return Err(Error::bad_input(
+                path,
+                format!("MCAP file does not start with a readable header record: {e}"),
+            ));
+        }
+        let summary_checked = super::guard::check_summary(&map);
+        let (summary, summary_note) = match summary_checked.map(|()| mcap::Summary::read(&map)) {
             Err(e) => (
                 None,
                 Some(format!(
-                    "the summary/footer cannot be read ({e}); the file may be truncated"
+                    "the summary cannot be read ({e}); the file may be damaged"
                 )),
             ),
+            Ok(r) => match r {
+                Ok(Some(s)) => (Some(s), None),
+                Ok(None) => (None, Some("the file has no summary section".to_string())),
+                Err(e) => (
+                    None,
+                    Some(format!(
+                        "the summary/footer cannot be read ({e}); the file may be truncated"
+                    )),
+                ),
+            },
         };
         let (profile, library) = match mcap::read::LinearReader::new_with_options(
             &map,
@@ -285,7 +302,12 @@ impl McapSource {
             .flat_map(|s| s.chunk_indexes.iter().map(|c| c.uncompressed_size as usize))
             .max()
             .unwrap_or(0);
-        let limit = (1usize << 30).max(self.map.len()).max(biggest_chunk);
+        // The chunk indexes are the file's word too: a chunk may be as big as it says only
+        // up to 1 GiB (or the file's size), so a corrupt index cannot make the reader
+        // allocate more.
+        let limit = (1usize << 30)
+            .max(self.map.len())
+            .max(biggest_chunk.min(1 << 30));
         let mut opts = LinearReaderOptions::default()
             .with_validate_chunk_crcs(true)
             .with_record_length_limit(limit);
@@ -342,6 +364,11 @@ impl McapSource {
                 LinearReadEvent::Record { opcode, data } => {
                     if past_data_end {
                         continue; // the summary repeats schemas and channels
+                    }
+                    if let Err(e) = super::guard::check_record(opcode, data) {
+                        out.damage.push(format!("at byte {pos}: {e}"));
+                        release(released, pos);
+                        return Ok(r);
                     }
                     let rec = match mcap::parse_record(opcode, data) {
                         Ok(rec) => rec,

@@ -59,7 +59,8 @@ pub fn read_trajectory(path: &Path, parent: &str, child: &str) -> Result<Vec<Tra
         }
         seen_data = true;
         let bad = |why: String| Error::bad_input(path, format!("line {}: {why}", ln + 1));
-        let t = t.ok_or_else(|| bad(format!("time \"{}\" is not a number", cols[0])))?;
+        let first = cols.first().copied().unwrap_or(line);
+        let t = t.ok_or_else(|| bad(format!("time \"{first}\" is not a number")))?;
         if cols.len() != 8 {
             return Err(bad(format!(
                 "expected 8 columns (time, x, y, z, qx, qy, qz, qw), found {}",
@@ -89,6 +90,16 @@ pub fn read_trajectory(path: &Path, parent: &str, child: &str) -> Result<Vec<Tra
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Fuzzing regression: a line of separators only after the header indexed an empty row.
+    #[test]
+    fn separator_only_lines_are_errors() {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("t.csv");
+        std::fs::write(&p, "e,time,xx,\n,\n17000s0.00000").unwrap();
+        let e = read_trajectory(&p, "map", "base").unwrap_err().to_string();
+        assert!(e.contains("t.csv") && e.contains("line 2"), "{e}");
+    }
 
     #[test]
     fn times_parse_exactly() {

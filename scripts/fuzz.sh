@@ -1,0 +1,62 @@
+#!/usr/bin/env bash
+# Runs every cargo-fuzz target of scripts/fuzz for SECONDS each (default 60), with seed corpora
+# from small files in $TESSERA_DATA and the generator, at a 2 GB RSS limit.
+#   scripts/fuzz.sh [SECONDS] [TARGET...]
+# Needs the nightly toolchain and cargo-fuzz (`cargo install cargo-fuzz`). Crashes land in
+# scripts/fuzz/artifacts/TARGET/; each becomes a regression input of `cargo test`
+# (tests/bad_input.rs). Prints executions and findings per target; exit 1 on any finding.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+SECONDS_EACH=${1:-60}
+shift || true
+DATA=${TESSERA_DATA:-../shared/data}
+FUZZ=scripts/fuzz
+CORPUS=${FUZZ_CORPUS:-/tmp/tessera-fuzz-corpus}
+TARGETS=("$@")
+[ ${#TARGETS[@]} -gt 0 ] || TARGETS=(las_file mcap_file pointcloud2 pcd config trajectory)
+command -v cargo-fuzz >/dev/null || { echo "cargo-fuzz missing: cargo install cargo-fuzz" >&2; exit 2; }
+
+seed() { # target file...
+  mkdir -p "$CORPUS/$1"; local t=$1; shift
+  for f in "$@"; do [ -f "$f" ] && cp -f "$f" "$CORPUS/$t/" || true; done
+}
+if [ ! -d "$CORPUS/las_file" ]; then
+  BIN=target/release/tessera
+  [ -x "$BIN" ] || cargo build --release
+  tmp=$(mktemp -d); trap 'rm -rf "$tmp"' EXIT
+  "$BIN" synth --length-m 4 --file-length-m 2 --out "$tmp/scene" -q
+  "$BIN" synth --mcap --length-m 3 --rings 4 --columns 64 --out "$tmp/drive" -q
+  seed las_file "$DATA/pdal-autzen-samples/interesting.las" "$DATA/isprs-filtertest/samp24-utm.laz" "$tmp"/scene/scene_00000.laz
+  seed mcap_file "$tmp/drive/drive.mcap"
+  python3 - "$tmp/drive/drive.mcap" "$CORPUS/pointcloud2" <<'PY' || true
+import sys, os
+from mcap.reader import make_reader
+os.makedirs(sys.argv[2], exist_ok=True)
+with open(sys.argv[1], "rb") as f:
+    for k, (schema, channel, msg) in enumerate(make_reader(f).iter_messages()):
+        if schema and schema.name.endswith("PointCloud2") and k < 50:
+            open(os.path.join(sys.argv[2], f"msg{k}"), "wb").write(msg.data)
+PY
+  head -c 65536 "$DATA/pcl-tutorials/min_cut_segmentation_tutorial.pcd" > "$tmp/head.pcd"
+  seed pcd "$tmp/head.pcd"
+  seed config config/default.toml config/airborne.toml
+  printf 'time,x,y,z,qx,qy,qz,qw\n1700000000.0,1,2,3,0,0,0,1\n1700000000.1,1.1,2,3,0,0,0,1\n' > "$tmp/t.csv"
+  seed trajectory "$tmp/t.csv"
+fi
+status=0
+for t in "${TARGETS[@]}"; do
+  mkdir -p "$CORPUS/$t"
+  log=$(mktemp)
+  # -O: optimised without overflow checks, as tessera ships (release profile): LASzip's
+  # arithmetic wraps on purpose (laz's GPS-time deltas overflow under debug assertions).
+  if ! cargo +nightly fuzz run -O --fuzz-dir "$FUZZ" "$t" "$CORPUS/$t" -- \
+      -max_total_time="$SECONDS_EACH" -rss_limit_mb=2048 -timeout=20 -max_len=1048576 -print_final_stats=1 \
+      >"$log" 2>&1; then
+    status=1
+    echo "== $t: FINDING"; grep -E "ERROR|panicked|SUMMARY|Test unit written" "$log" | head -8
+  fi
+  execs=$(grep -oE "stat::number_of_executed_units: *[0-9]+" "$log" | grep -oE "[0-9]+$" | tail -1)
+  echo "== $t: ${execs:-?} executions in ${SECONDS_EACH} s"
+  rm -f "$log"
+done
+exit $status
