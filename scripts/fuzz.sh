@@ -26,7 +26,20 @@ if [ ! -d "$CORPUS/las_file" ]; then
   tmp=$(mktemp -d); trap 'rm -rf "$tmp"' EXIT
   "$BIN" synth --length-m 4 --file-length-m 2 --out "$tmp/scene" -q
   "$BIN" synth --mcap --length-m 3 --rings 4 --columns 64 --out "$tmp/drive" -q
-  seed las_file "$DATA/pdal-autzen-samples/interesting.las" "$DATA/isprs-filtertest/samp24-utm.laz" "$tmp"/scene/scene_00000.laz
+  # Small seeds keep executions fast: 300-point LAS/LAZ files in formats 1, 3, 6, 7 and 8
+  # (LAZ through lazrs, an independent writer), plus one real file.
+  python3 - "$tmp" <<'PY' || true
+import sys, numpy as np, laspy
+for fmt, ver in [(1, "1.2"), (3, "1.2"), (6, "1.4"), (7, "1.4"), (8, "1.4")]:
+    las = laspy.create(point_format=fmt, file_version=ver)
+    n = 300
+    las.x = np.linspace(0, 30, n); las.y = np.linspace(0, 5, n); las.z = np.sin(np.arange(n))
+    las.classification = np.arange(n) % 10
+    las.gps_time = np.arange(n) * 0.001
+    for ext in ("las", "laz"):
+        las.write(f"{sys.argv[1]}/seed_{fmt}.{ext}")
+PY
+  seed las_file "$DATA/isprs-filtertest/samp24-utm.laz" "$tmp"/seed_*.la?
   seed mcap_file "$tmp/drive/drive.mcap"
   python3 - "$tmp/drive/drive.mcap" "$CORPUS/pointcloud2" <<'PY' || true
 import sys, os

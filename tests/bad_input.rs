@@ -282,7 +282,13 @@ fn hostile_sizes_and_laszip_records_are_errors_not_aborts() {
         i64::from_le_bytes(b[at..at + 8].try_into().unwrap()) as usize
     };
     // (file name, byte offset, bytes written there, what the error must say)
-    let cases: [(&str, usize, Vec<u8>, &str); 5] = [
+    let cases: [(&str, usize, Vec<u8>, &str); 6] = [
+        (
+            "chunk_size.laz",
+            vlr + 12,
+            0x7fff_ffffu32.to_le_bytes().to_vec(),
+            "claims 2147483647 points",
+        ),
         (
             "many_chunks.laz",
             table + 4,

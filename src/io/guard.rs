@@ -241,6 +241,26 @@ fn check_table_at(
     if chunk_size == 0 {
         return bad("the LASzip VLR gives a chunk size of 0 points".into());
     }
+    // The entries (now that their count is bounded): `laz` allocates by the largest chunk's
+    // point count. A compressed point takes at least a bit, so a chunk of `b` bytes holds at
+    // most 8·b points (chunks up to 2^20 points always pass).
+    let parsed = laz::LazVlr::read_from(vlr)
+        .map_err(|e| Error::bad_input(path, format!("LASzip VLR: cannot be read ({e})")))?;
+    f.seek(SeekFrom::Start(start))
+        .map_err(|e| Error::io(path, e))?;
+    let entries = match laz::laszip::ChunkTable::read_from(&mut *f, &parsed) {
+        Ok(t) => t,
+        // Unreadable tables are reported by the reader, with its own message.
+        Err(_) => return Ok(()),
+    };
+    for (k, e) in entries.as_ref().iter().enumerate() {
+        if e.point_count > (1 << 20) && e.point_count / 8 > e.byte_count {
+            return bad(format!(
+                "chunk {k} claims {} points in {} bytes",
+                e.point_count, e.byte_count
+            ));
+        }
+    }
     Ok(())
 }
 
