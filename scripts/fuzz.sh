@@ -13,7 +13,7 @@ DATA=${TESSERA_DATA:-../shared/data}
 FUZZ=scripts/fuzz
 CORPUS=${FUZZ_CORPUS:-/tmp/tessera-fuzz-corpus}
 TARGETS=("$@")
-[ ${#TARGETS[@]} -gt 0 ] || TARGETS=(las_file mcap_file pointcloud2 pcd config trajectory)
+[ ${#TARGETS[@]} -gt 0 ] || TARGETS=(las_file mcap_file pointcloud2 pcd config trajectory samples)
 command -v cargo-fuzz >/dev/null || { echo "cargo-fuzz missing: cargo install cargo-fuzz" >&2; exit 2; }
 
 seed() { # target file...
@@ -55,6 +55,20 @@ PY
   seed config config/default.toml config/airborne.toml
   printf 'time,x,y,z,qx,qy,qz,qw\n1700000000.0,1,2,3,0,0,0,1\n1700000000.1,1.1,2,3,0,0,0,1\n' > "$tmp/t.csv"
   seed trajectory "$tmp/t.csv"
+fi
+if [ ! -d "$CORPUS/samples" ]; then
+  mkdir -p "$CORPUS/samples"
+  cat > "$CORPUS/samples/set.json" <<'JSON'
+{"samples":[{"class":11,"name":"road 1","points":812,"mean":[41.5,-0.8,2.1],"std":[6.2,1.1,1.9]},
+ {"class":2,"name":"grass","points":95,"mean":[48.0,-19.5,27.0],"std":[3.0,2.5,4.0]}]}
+JSON
+  cat > "$CORPUS/samples/polygons.geojson" <<'JSON'
+{"type":"FeatureCollection","features":[
+ {"type":"Feature","properties":{"class":11,"name":"road"},"geometry":{"type":"Polygon",
+  "coordinates":[[[0,0],[10,0],[10,4],[0,4],[0,0]],[[2,1],[3,1],[3,2],[2,1]]]}},
+ {"type":"Feature","properties":{"class":2},"geometry":{"type":"MultiPolygon",
+  "coordinates":[[[[20,0],[25,0],[25,5],[20,0]]]]}}]}
+JSON
 fi
 status=0
 for t in "${TARGETS[@]}"; do

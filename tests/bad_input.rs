@@ -312,3 +312,50 @@ fn hostile_sizes_and_laszip_records_are_errors_not_aborts() {
         expect_failure(&bad, needle);
     }
 }
+
+/// Fuzzing regression (issue 23, `las_file` target): in a layered chunk (formats 6–10) a
+/// layer's byte size bit-flipped to 2^31 made laz 0.13 allocate it before reading (the
+/// process aborted at a memory cap). The chunk's layer sizes are checked against the chunk
+/// table now, and a valid layered file still reads.
+#[test]
+fn layered_chunk_layer_sizes_are_bounded_by_the_chunk() {
+    let d = tempfile::tempdir().unwrap();
+    let full = d.path().join("layered.laz");
+    let mut b = las::Builder::from((1, 4));
+    b.point_format = las::point::Format::new(7).unwrap();
+    b.point_format.is_compressed = true;
+    let mut w = las::Writer::from_path(&full, b.into_header().unwrap()).unwrap();
+    for i in 0..4000u32 {
+        let v = f64::from(i) * 0.37;
+        w.write_point(las::Point {
+            x: v % 97.0,
+            y: (v * 7.0) % 89.0,
+            z: v % 5.0,
+            gps_time: Some(v),
+            color: Some(las::Color::new(i as u16, 7, 9)),
+            ..Default::default()
+        })
+        .unwrap();
+    }
+    w.close().unwrap();
+    let o = tessera().arg("info").arg(&full).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+
+    let mut m = std::fs::read(&full).unwrap();
+    let points = u32::from_le_bytes(m[96..100].try_into().unwrap()) as usize;
+    let record = usize::from(u16::from_le_bytes([m[105], m[106]]));
+    // Chunk 0: table offset (8 bytes), raw point, point count, then the layer sizes; the
+    // second one is z's.
+    let z_layer = points + 8 + record + 4 + 4;
+    m[z_layer..z_layer + 4].copy_from_slice(&0x8000_0000u32.to_le_bytes());
+    let bad = d.path().join("layer_size.laz");
+    std::fs::write(&bad, &m).unwrap();
+    let o = tessera().arg("info").arg(&bad).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("layer_size.laz") && err.contains("its layers claim"),
+        "{err}"
+    );
+    expect_failure(&bad, "its layers claim");
+}

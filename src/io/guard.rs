@@ -261,6 +261,80 @@ fn check_table_at(
             ));
         }
     }
+    check_layers(path, f, start + 8, table, record_len, vlr, entries.as_ref())
+}
+
+/// Number of compressed layers a LAS 1.4 layered chunk stores per LASzip item (type, size),
+/// or `None` for the point-wise items of formats 0–5.
+fn layers_of(ty: u16, size: u16) -> Option<u64> {
+    match ty {
+        10 => Some(9),               // Point14: xy+returns, z, class, flags, intensity, ...
+        11 | 13 => Some(1),          // RGB14, WavePacket14
+        12 => Some(2),               // RGBNIR14: RGB and NIR
+        14 => Some(u64::from(size)), // Byte14: one layer per extra byte
+        _ => None,
+    }
+}
+
+/// Layered chunks (point formats 6–10): each begins with a raw point, its point count and the
+/// byte size of every layer; `laz` allocates each layer's buffer by that size before reading
+/// it (laz 0.13 `copy_bytes_into_decoder`), so a size bit-flipped to 2^31 allocated gigabytes
+/// and aborted under a memory cap. The sizes must fit in the chunk, as the chunk table states.
+fn check_layers(
+    path: &Path,
+    f: &mut File,
+    first: u64,
+    table: u64,
+    record_len: u64,
+    vlr: &[u8],
+    entries: &[laz::laszip::ChunkTableEntry],
+) -> Result<()> {
+    let items = usize::from(u16_at(vlr, 32));
+    let mut layers = 0u64;
+    for k in 0..items {
+        let o = 34 + 6 * k;
+        match layers_of(u16_at(vlr, o), u16_at(vlr, o + 2)) {
+            Some(n) if u16_at(vlr, o + 4) >= 3 => layers += n,
+            _ => return Ok(()),
+        }
+    }
+    let head = record_len + 4 + 4 * layers;
+    let mut buf = vec![0u8; usize::try_from(4 * layers).unwrap_or(0)];
+    let mut at = first;
+    for (k, e) in entries.iter().enumerate() {
+        if e.byte_count == 0 {
+            continue;
+        }
+        let end = at.saturating_add(e.byte_count);
+        let bad = |m: String| {
+            Err(Error::bad_input(
+                path,
+                format!("LAZ chunk {k} at byte {at} ({} bytes): {m}", e.byte_count),
+            ))
+        };
+        if end > table {
+            return bad(format!("runs past the chunk table at byte {table}"));
+        }
+        if e.byte_count < head {
+            return bad(format!(
+                "too short for its {head}-byte header (raw point, count, {layers} layer sizes)"
+            ));
+        }
+        if read_at(f, at + record_len + 4, &mut buf).is_err() {
+            return bad("cut off".into());
+        }
+        let sum: u64 = buf
+            .chunks_exact(4)
+            .map(|c| u64::from(u32::from_le_bytes([c[0], c[1], c[2], c[3]])))
+            .sum();
+        if sum > e.byte_count - head {
+            return bad(format!(
+                "its layers claim {sum} bytes, more than the {} after its header",
+                e.byte_count - head
+            ));
+        }
+        at = end;
+    }
     Ok(())
 }
 
