@@ -79,6 +79,30 @@ pub struct StagesParams {
     pub run: Vec<String>,
 }
 
+/// `[crs]`: the inputs' linear unit.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CrsParams {
+    /// "auto" (read from the inputs' CRS), "metre", "foot" or "us_survey_foot".
+    pub units: String,
+}
+
+impl CrsParams {
+    /// The stated unit, `None` for "auto".
+    pub fn stated_unit(&self) -> Result<Option<crate::io::crs::LinearUnit>> {
+        use crate::io::crs::LinearUnit;
+        match self.units.as_str() {
+            "auto" => Ok(None),
+            "metre" | "meter" | "m" => Ok(Some(LinearUnit::metre())),
+            "foot" | "ft" => Ok(Some(LinearUnit::foot())),
+            "us_survey_foot" | "us_ft" => Ok(Some(LinearUnit::us_survey_foot())),
+            other => Err(Error::Config(format!(
+                "crs.units must be \"auto\", \"metre\", \"foot\" or \"us_survey_foot\", got \"{other}\""
+            ))),
+        }
+    }
+}
+
 /// The whole validated configuration: only [`Config::load`] makes one (it parses the run's
 /// own sections and hands the stage sections to their stages).
 #[derive(Debug, Clone)]
@@ -95,12 +119,16 @@ pub struct Config {
     pub mcap: crate::io::mcap::McapParams,
     /// `[stitch]`
     pub stitch: crate::stitch::StitchParams,
+    /// `[crs]`
+    pub crs: CrsParams,
     /// The registered stages' sections as written (`[ground]`, `[segment]`, …), keyed by
     /// stage name; each is parsed and checked by its stage.
     pub sections: toml::Table,
     /// Every setting as `section.key = value` (defaults, file and `--set` merged), in key
     /// order: what a resumed run compares with the run it continues.
     pub effective: std::collections::BTreeMap<String, String>,
+    /// The merged document all of the above were parsed from (for [`Config::in_length_unit`]).
+    document: toml::Value,
 }
 
 /// Flattens a TOML document into `a.b.c = value` pairs (arrays and scalars as TOML text).
@@ -133,6 +161,7 @@ struct RunSections {
     stages: StagesParams,
     mcap: crate::io::mcap::McapParams,
     stitch: crate::stitch::StitchParams,
+    crs: CrsParams,
 }
 
 impl Config {
@@ -151,6 +180,12 @@ impl Config {
         for item in overrides {
             apply_override(&mut root, &renamed_override(item))?;
         }
+        Config::from_document(root)
+    }
+
+    /// Parses and validates a merged document.
+    fn from_document(mut root: toml::Value) -> Result<Config> {
+        let document = root.clone();
         let mut effective = std::collections::BTreeMap::new();
         flatten("", &root, &mut effective);
         // Stage sections go to their stages; the rest must be the run's own sections.
@@ -177,8 +212,10 @@ impl Config {
             stages: run.stages,
             mcap: run.mcap,
             stitch: run.stitch,
+            crs: run.crs,
             sections,
             effective,
+            document,
         };
         cfg.validate()?;
         Ok(cfg)
@@ -187,6 +224,78 @@ impl Config {
     /// The defaults alone.
     pub fn defaults() -> Result<Config> {
         Config::load(None, &[])
+    }
+
+    /// The same configuration for inputs whose coordinates are in a unit of `metres_per_unit`
+    /// metres: every distance (a key ending in `_m`, each element of an array of them) is
+    /// divided by it, every area (`_m2`) by its square. `[mcap]` is left alone: drives are
+    /// decoded in metres whatever their output CRS. The keys converted are returned.
+    ///
+    /// One naming rule instead of a list of keys: a new distance parameter is converted as
+    /// soon as it is named like the others (a test checks the defaults follow the rule). The
+    /// tile size is rounded to whole units.
+    pub fn in_length_unit(&self, metres_per_unit: f64) -> Result<(Config, Vec<String>)> {
+        fn scale(v: &mut toml::Value, f: f64) -> bool {
+            match v {
+                toml::Value::Float(x) => {
+                    *x /= f;
+                    true
+                }
+                toml::Value::Integer(n) => {
+                    *v = toml::Value::Float(*n as f64 / f);
+                    true
+                }
+                toml::Value::Array(a) => {
+                    // Every element (no short-circuit).
+                    let mut any = false;
+                    for e in a.iter_mut() {
+                        any |= scale(e, f);
+                    }
+                    any
+                }
+                _ => false,
+            }
+        }
+        fn walk(path: &str, v: &mut toml::Value, f: f64, done: &mut Vec<String>) {
+            let Some(t) = v.as_table_mut() else { return };
+            for (k, v) in t.iter_mut() {
+                let key = if path.is_empty() {
+                    k.clone()
+                } else {
+                    format!("{path}.{k}")
+                };
+                if key == "mcap" {
+                    continue;
+                }
+                let factor = if k.ends_with("_m") {
+                    f
+                } else if k.ends_with("_m2") {
+                    f * f
+                } else {
+                    walk(&key, v, f, done);
+                    continue;
+                };
+                if scale(v, factor) {
+                    done.push(key);
+                }
+            }
+        }
+        if !(metres_per_unit.is_finite() && metres_per_unit > 0.0) {
+            return Err(Error::Config(format!(
+                "a length unit of {metres_per_unit} m"
+            )));
+        }
+        let mut doc = self.document.clone();
+        let mut done = Vec::new();
+        walk("", &mut doc, metres_per_unit, &mut done);
+        // The tile size only places the grid: a whole number of units keeps tile names (the
+        // lower-left corners) integers, e.g. 164 ft for 50 m instead of 164.042 ft.
+        if let Some(t) = doc.get_mut("tiling").and_then(|t| t.get_mut("tile_size_m")) {
+            if let Some(v) = t.as_float().filter(|v| *v >= 1.0) {
+                *t = toml::Value::Float(v.round());
+            }
+        }
+        Ok((Config::from_document(doc)?, done))
     }
 
     /// Output point format override, `None` for "auto".
@@ -254,6 +363,7 @@ impl Config {
         self.output_point_format()?;
         self.mcap.validate()?;
         self.stitch.validate().map_err(Error::Config)?;
+        self.crs.stated_unit()?;
         // Every stage's own section (whether or not it runs) and the stage list.
         crate::stages::validate_stages(&self.stages.run, &self.sections)
     }
@@ -360,6 +470,55 @@ fn apply_override(root: &mut toml::Value, item: &str) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn length_unit_converts_distances_and_areas_only() {
+        let c = Config::defaults().unwrap();
+        let (f, keys) = c.in_length_unit(0.5).unwrap();
+        assert_eq!(f.tiling.tile_size_m, 2.0 * c.tiling.tile_size_m);
+        let (ft, _) = c.in_length_unit(0.3048).unwrap();
+        assert_eq!(ft.tiling.tile_size_m, 164.0, "whole units");
+        assert!((ft.tiling.buffer_m - c.tiling.buffer_m / 0.3048).abs() < 1e-9);
+        assert_eq!(f.tiling.buffer_m, 2.0 * c.tiling.buffer_m);
+        let g = |c: &Config, k: &str| c.effective[k].parse::<f64>().unwrap();
+        for k in ["ground.params.max_distance_m", "segment.params.r_grow_m"] {
+            assert_eq!(g(&f, k), 2.0 * g(&c, k), "{k}");
+            assert!(keys.iter().any(|x| x == k), "{k}");
+        }
+        let area = "label.objects.roof_min_area_m2";
+        assert_eq!(g(&f, area), 4.0 * g(&c, area));
+        assert_eq!(f.effective["label.objects.vehicle_length_m"], "[5.0, 15.0]");
+        // Angles, counts, colour distances and the MCAP decoding (always metres) stay.
+        for k in [
+            "ground.params.max_angle_deg",
+            "segment.params.k",
+            "segment.params.c_thg",
+            "mcap.min_range_m",
+            "mcap.scale_m",
+            "pipeline.memory_budget_mb",
+        ] {
+            assert_eq!(f.effective[k], c.effective[k], "{k}");
+            assert!(!keys.iter().any(|x| x == k), "{k}");
+        }
+        // The rule the conversion relies on: lengths are named *_m / *_m2 in the defaults.
+        for (k, v) in &c.effective {
+            let last = k.rsplit('.').next().unwrap();
+            let numeric = v.parse::<f64>().is_ok() || v.starts_with('[');
+            if numeric
+                && (last.contains("dist") || last.contains("radius") || last.contains("size"))
+            {
+                assert!(
+                    last.ends_with("_m")
+                        || last.ends_with("_m2")
+                        || last.ends_with("_mb")
+                        || last.ends_with("_px"),
+                    "{k} looks like a length but is not named *_m"
+                );
+            }
+        }
+        assert!(c.in_length_unit(0.0).is_err());
+        assert!(Config::load(None, &["crs.units=\"yard\"".into()]).is_err());
+    }
 
     #[test]
     fn defaults_parse_and_validate() {

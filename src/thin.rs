@@ -188,8 +188,11 @@ pub struct ThinStats {
 /// The output is written to a temporary file and renamed, so a failure leaves no partial file.
 pub fn thin_file(input: &Path, output: &Path, spacing_m: f64) -> crate::Result<ThinStats> {
     use crate::Error;
-    let mut thinner = Thinner::new(spacing_m).map_err(|e| Error::Config(e.to_string()))?;
+    Thinner::new(spacing_m).map_err(|e| Error::Config(e.to_string()))?;
     let file = crate::io::input::scan_file(input, 0)?;
+    // The spacing is metres; a file in feet is thinned at the same distance in its unit.
+    let unit_m = crate::io::crs::metres_per_unit(&file.header);
+    let mut thinner = Thinner::new(spacing_m / unit_m).map_err(|e| Error::Config(e.to_string()))?;
     if let (Ok(a), Ok(b)) = (std::fs::canonicalize(input), std::fs::canonicalize(output)) {
         if a == b {
             return Err(Error::Config(format!(
@@ -218,6 +221,9 @@ pub fn thin_file(input: &Path, output: &Path, spacing_m: f64) -> crate::Result<T
         ))
     })?;
     header.clear();
+    if header.point_format().is_extended {
+        crate::io::output::set_wkt(&mut header, &file.header)?;
+    }
     let tmp = crate::io::output::tmp_path(output);
     let res = (|| -> crate::Result<u64> {
         let mut w = crate::io::laswrite::LasFile::create(&tmp, header, Default::default())?;

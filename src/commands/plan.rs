@@ -14,9 +14,13 @@ pub fn plan(
     quiet: bool,
 ) -> anyhow::Result<()> {
     let cfg = Config::load(opts.config.as_deref(), &opts.set)?;
+    // The grid in the inputs' unit, as the tasks will cut it (the plan keeps the settings in
+    // metres; each task converts them the same way).
+    let expanded = tessera::io::input::expand_paths(inputs)?;
+    let (unit_cfg, _) = tessera::pipeline::units::for_inputs(&cfg, &expanded)?;
     let grid = Grid {
-        tile_size_m: cfg.tiling.tile_size_m,
-        buffer_m: cfg.tiling.buffer_m,
+        tile_size_m: unit_cfg.tiling.tile_size_m,
+        buffer_m: unit_cfg.tiling.buffer_m,
     };
     let plan = tessera::region::plan_region(inputs, grid, tasks)?;
     plan.write(out, &cfg.effective)?;

@@ -162,6 +162,9 @@ pub fn load_fields(path: &Path, precision_m: f64, fields: &[&str]) -> Result<Fie
             .collect::<Result<_>>()?;
         let layout =
             crate::model::RecordLayout::new(*file.header.point_format(), *file.header.transforms());
+        // Keys in metres whatever the file's unit (a feet CRS): the precision is metres, and
+        // a reference in feet matches a result in feet (or in metres).
+        let k = crate::io::crs::metres_per_unit(&file.header) / precision_m;
         crate::io::input::read_file_chunks(
             &file,
             &layout,
@@ -171,9 +174,9 @@ pub fn load_fields(path: &Path, precision_m: f64, fields: &[&str]) -> Result<Fie
                 for p in pd.points() {
                     let p = p.map_err(|e| Error::las(f, e))?;
                     out.keys.push([
-                        (p.x / precision_m).round() as i64,
-                        (p.y / precision_m).round() as i64,
-                        (p.z / precision_m).round() as i64,
+                        (p.x * k).round() as i64,
+                        (p.y * k).round() as i64,
+                        (p.z * k).round() as i64,
                     ]);
                     out.xyz.push([p.x, p.y, p.z]);
                     out.file.push(fi as u32);

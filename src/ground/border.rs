@@ -27,13 +27,14 @@ impl BorderLevels {
         max_x: f64,
         max_y: f64,
         quantile: f64,
+        strip_max_m: f64,
     ) -> Self {
         if quantile > 0.0 {
-            return Self::quantile(points, frame, grid, max_x, max_y, quantile);
+            return Self::quantile(points, frame, grid, max_x, max_y, quantile, strip_max_m);
         }
         // The strip is a fraction of a seed cell: narrow enough to hold the terrain right at
         // the border, wide enough to hold a few points.
-        let strip_m = (0.2 * grid.cell_m).min(3.0);
+        let strip_m = (0.2 * grid.cell_m).min(strip_max_m);
         let mut two_lowest: [Vec<[f64; 2]>; 4] = [
             vec![[f64::INFINITY; 2]; grid.ny],
             vec![[f64::INFINITY; 2]; grid.ny],
@@ -76,8 +77,9 @@ impl BorderLevels {
         max_x: f64,
         max_y: f64,
         quantile: f64,
+        strip_max_m: f64,
     ) -> Self {
-        let strip_m = (0.2 * grid.cell_m).min(3.0);
+        let strip_m = (0.2 * grid.cell_m).min(strip_max_m);
         let mut zs: [Vec<Vec<f64>>; 4] = [
             vec![Vec::new(); grid.ny],
             vec![Vec::new(); grid.ny],

@@ -129,6 +129,11 @@ pub struct GroundParams {
     /// TIN neighbours (and below 3/4 of them) are removed as pits, like `tin_spike_m` upwards
     /// (0 disables).
     pub tin_pit_m: f64,
+    /// Widest strip along the tile border whose low points level the TIN's virtual border
+    /// vertices (the strip is a fifth of a seed cell, at most this).
+    pub border_strip_m: f64,
+    /// The virtual border vertices lie on the points' bounding box expanded by this margin.
+    pub border_margin_m: f64,
 }
 
 impl Default for GroundParams {
@@ -153,6 +158,8 @@ impl Default for GroundParams {
             seed_quantile: 0.0,
             seed_pit_m: 0.0,
             tin_pit_m: 0.0,
+            border_strip_m: 3.0,
+            border_margin_m: 1.0,
         }
     }
 }
@@ -213,6 +220,8 @@ impl GroundParams {
             seed_quantile: 0.2,
             seed_pit_m: 0.5,
             tin_pit_m: 0.1,
+            border_strip_m: 3.0,
+            border_margin_m: 1.0,
             ..GroundParams::default()
         }
     }
@@ -291,6 +300,18 @@ impl GroundParams {
             "in [0, 1)",
         )?;
         check("tin_pit_m", self.tin_pit_m, self.tin_pit_m >= 0.0, ">= 0")?;
+        check(
+            "border_strip_m",
+            self.border_strip_m,
+            self.border_strip_m > 0.0,
+            "> 0",
+        )?;
+        check(
+            "border_margin_m",
+            self.border_margin_m,
+            self.border_margin_m >= 0.0,
+            ">= 0",
+        )?;
         check(
             "seed_pit_m",
             self.seed_pit_m,

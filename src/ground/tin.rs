@@ -320,16 +320,32 @@ impl Densifier<'_> {
             max_x = max_x.max(l[0]);
             max_y = max_y.max(l[1]);
         }
-        let margin = 1.0;
+        let margin = params.border_margin_m;
         let bbox = (-margin, -margin, max_x + margin, max_y + margin);
         let n_seed_vertices = initial.len();
         let seeds_xyz: Vec<[f64; 3]> = initial.iter().map(|v| [v.pos.x, v.pos.y, v.z]).collect();
         let border = match thinned {
             Some(low) if params.seed_quantile > 0.0 => {
                 let sub: Vec<[f64; 3]> = low.iter().map(|&i| points[i as usize]).collect();
-                BorderLevels::new(&sub, frame, grid, max_x, max_y, params.seed_quantile)
+                BorderLevels::new(
+                    &sub,
+                    frame,
+                    grid,
+                    max_x,
+                    max_y,
+                    params.seed_quantile,
+                    params.border_strip_m,
+                )
             }
-            _ => BorderLevels::new(points, frame, grid, max_x, max_y, 0.0),
+            _ => BorderLevels::new(
+                points,
+                frame,
+                grid,
+                max_x,
+                max_y,
+                0.0,
+                params.border_strip_m,
+            ),
         };
         push_side_copies(&mut initial, n_seed_vertices, grid, &border, bbox);
         push_corners(&mut initial, &seeds_xyz, grid, &border, bbox);

@@ -97,7 +97,16 @@ pub struct LasFile {
     writer: Option<Writer<BufWriter<SharedFile>>>,
     file: SharedFile,
     path: PathBuf,
+    /// Smallest and largest integer X, Y, Z written (the header bounds, exactly).
+    extent: Option<([i32; 3], [i32; 3])>,
+    transforms: las::Vector<las::Transform>,
+    extended: bool,
 }
+
+/// Byte offsets in the LAS header (all versions) of the legacy point count, the legacy
+/// points by return (5 × u32) and the bounds (max x, min x, max y, min y, max z, min z).
+const LEGACY_COUNT_AT: u64 = 107;
+const BOUNDS_AT: u64 = 179;
 
 impl LasFile {
     /// Creates `path` (truncating it) and writes `header`.
@@ -105,12 +114,49 @@ impl LasFile {
         let f = File::create(path).map_err(|e| Error::io(path, e))?;
         let file = SharedFile::new(f);
         let buf = BufWriter::with_capacity(1 << 20, file.clone());
+        let transforms = *header.transforms();
+        let extended = header.point_format().is_extended;
         let writer = Writer::with_options(buf, header, options).map_err(|e| Error::las(path, e))?;
         Ok(LasFile {
             writer: Some(writer),
             file,
             path: path.to_path_buf(),
+            extent: None,
+            transforms,
+            extended,
         })
+    }
+
+    fn grow(&mut self, xyz: [i32; 3]) {
+        let (lo, hi) = self.extent.get_or_insert((xyz, xyz));
+        for k in 0..3 {
+            lo[k] = lo[k].min(xyz[k]);
+            hi[k] = hi[k].max(xyz[k]);
+        }
+    }
+
+    /// Sets what `las` 0.11 writes wrong in the header, in place once the file is complete:
+    /// - the bounds: `las` widens them outward to the scale grid after a floating-point round
+    ///   trip, so a maximum sitting exactly on the grid often comes out one unit too large;
+    ///   here they are the written extremes, computed as readers compute coordinates;
+    /// - point formats 6–10 cannot keep legacy compatibility (LAS 1.4 R15): their legacy
+    ///   point count and points by return must be 0; `las` fills them in.
+    fn fix_header(&self, f: &File) -> std::io::Result<()> {
+        use std::os::unix::fs::FileExt;
+        if self.extended {
+            f.write_all_at(&[0u8; 24], LEGACY_COUNT_AT)?;
+        }
+        if let Some((lo, hi)) = self.extent {
+            let t = [self.transforms.x, self.transforms.y, self.transforms.z];
+            let mut b = Vec::with_capacity(48);
+            for k in 0..3 {
+                for v in [hi[k], lo[k]] {
+                    b.extend((f64::from(v) * t[k].scale + t[k].offset).to_le_bytes());
+                }
+            }
+            f.write_all_at(&b, BOUNDS_AT)?;
+        }
+        Ok(())
     }
 
     fn writer(&mut self) -> Result<&mut Writer<BufWriter<SharedFile>>> {
@@ -121,14 +167,34 @@ impl LasFile {
 
     /// Writes pre-encoded records (the writer's point format).
     pub fn write_points(&mut self, data: &PointData) -> Result<()> {
-        let r = self.writer()?.write_points(data);
-        r.map_err(|e| Error::las(&self.path, e))
+        self.writer()?
+            .write_points(data)
+            .map_err(|e| Error::las(&self.path, e))?;
+        let rl = data.record_len();
+        for r in data.raw_bytes().chunks_exact(rl) {
+            let at = |o: usize| i32::from_le_bytes([r[o], r[o + 1], r[o + 2], r[o + 3]]);
+            self.grow([at(0), at(4), at(8)]);
+        }
+        Ok(())
     }
 
     /// Writes one point.
     pub fn write_point(&mut self, p: las::Point) -> Result<()> {
-        let r = self.writer()?.write_point(p);
-        r.map_err(|e| Error::las(&self.path, e))
+        let t = self.transforms;
+        let xyz = (|| {
+            Some([
+                t.x.inverse(p.x).ok()?,
+                t.y.inverse(p.y).ok()?,
+                t.z.inverse(p.z).ok()?,
+            ])
+        })();
+        self.writer()?
+            .write_point(p)
+            .map_err(|e| Error::las(&self.path, e))?;
+        if let Some(xyz) = xyz {
+            self.grow(xyz);
+        }
+        Ok(())
     }
 
     /// Closes the file: writes the final header, flushes, and reports every error.
@@ -146,7 +212,9 @@ impl LasFile {
         drop(inner);
         // Closing the descriptor reports nothing more for a regular file; data is in the page
         // cache (tiles are not fsynced, see `TileWriter`).
-        drop(self.file.take());
+        if let Some(f) = self.file.take() {
+            self.fix_header(&f).map_err(|e| Error::io(&self.path, e))?;
+        }
         Ok(())
     }
 }

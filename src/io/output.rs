@@ -97,6 +97,34 @@ impl SegmentIdType {
 /// Name of the per-point segment id attribute.
 pub const SEGMENT_ID: &str = "segment_id";
 
+/// Puts the template's CRS into `header` as an OGC WKT record (formats 6–10), and only
+/// that. A template without a CRS gives none; GeoTIFF keys whose CRS has no EPSG code are kept
+/// as they are, with a warning (no WKT can be made for them).
+pub fn set_wkt(header: &mut las::Header, template: &las::Header) -> Result<()> {
+    let has_geotiff = template.all_vlrs().any(|v| v.is_geotiff_crs());
+    let wkt = match template.get_wkt_crs_bytes() {
+        // The input's own WKT, without the GeoTIFF keys some writers add next to it.
+        Some(w) if has_geotiff => Some(String::from_utf8_lossy(w).into_owned()),
+        Some(_) => return Ok(()),
+        None if has_geotiff => crate::io::crs::CrsInfo::of_header(template)
+            .unwrap_or_default()
+            .output_wkt(),
+        None => return Ok(()),
+    };
+    match wkt {
+        Some(wkt) => header
+            .set_wkt_crs(wkt.into_bytes())
+            .map_err(|e| Error::Config(format!("cannot write the OGC WKT record: {e}"))),
+        None => {
+            tracing::warn!(
+                "the inputs' GeoTIFF CRS has no EPSG code tessera can convert to WKT: point format {} outputs keep the GeoTIFF keys",
+                header.point_format()
+            );
+            Ok(())
+        }
+    }
+}
+
 /// Per-tile segmentation results handed to [`TileWriter::prepare`].
 #[derive(Debug, Clone, Copy)]
 pub struct TileSegments<'a> {
@@ -187,6 +215,11 @@ impl TileWriter {
             .into_header()
             .map_err(|e| Error::Config(format!("cannot build the output header: {e}")))?;
         header.clear();
+        if header.point_format().is_extended {
+            // LAS 1.4 R15: point formats 6–10 carry their CRS as OGC WKT (the WKT bit is set
+            // for them); GeoTIFF keys of a legacy input are converted through their EPSG code.
+            set_wkt(&mut header, template)?;
+        }
         Ok(TileWriter {
             header,
             layout: layout.clone(),

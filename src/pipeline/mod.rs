@@ -21,6 +21,7 @@ pub mod stitch_dir;
 pub mod task;
 mod tiler;
 mod tokens;
+pub mod units;
 mod worker;
 mod writer;
 
@@ -51,11 +52,11 @@ pub fn run(
     cfg: &Config,
     progress: ProgressFn,
 ) -> Result<Summary> {
-    let stages = cfg.build_stages()?;
-    run_with_stages(inputs, out_dir, cfg, &stages, progress)
+    run_scoped(inputs, out_dir, cfg, None, progress, None)
 }
 
-/// Like [`run`], with the stages given by the caller instead of `cfg.stages.run`.
+/// Like [`run`], with the stages given by the caller instead of `cfg.stages.run` (built by
+/// the caller, so in metres: inputs in another unit are refused).
 pub fn run_with_stages(
     inputs: &[PathBuf],
     out_dir: &Path,
@@ -63,7 +64,7 @@ pub fn run_with_stages(
     stages: &[Box<dyn Stage>],
     progress: ProgressFn,
 ) -> Result<Summary> {
-    run_scoped(inputs, out_dir, cfg, stages, progress, None)
+    run_scoped(inputs, out_dir, cfg, Some(stages), progress, None)
 }
 
 /// Runs task `index` of the plan in `plan_dir` into its task directory (see [`task`]).
@@ -84,9 +85,8 @@ pub fn run_task(plan_dir: &Path, index: usize, progress: ProgressFn) -> Result<O
         return Ok(None);
     }
     let cfg = Config::load(Some(&task::PlanFile::config_path(plan_dir)), &[])?;
-    let stages = cfg.build_stages()?;
     let scope = task::TaskScope::load(plan_dir, index)?;
-    run_scoped(&plan.inputs, &out, &cfg, &stages, progress, Some(&scope)).map(Some)
+    run_scoped(&plan.inputs, &out, &cfg, None, progress, Some(&scope)).map(Some)
 }
 
 /// A run of the whole region (`scope` None) or of one task of a plan.
@@ -94,7 +94,7 @@ fn run_scoped(
     inputs: &[PathBuf],
     out_dir: &Path,
     cfg: &Config,
-    stages: &[Box<dyn Stage>],
+    given_stages: Option<&[Box<dyn Stage>]>,
     progress: ProgressFn,
     scope: Option<&task::TaskScope>,
 ) -> Result<Summary> {
@@ -116,6 +116,23 @@ fn run_scoped(
         .unwrap_or_else(|| out.stage().to_path_buf());
     // The output directory (and anything under it) is never an input.
     let inputs = crate::io::input::expand_paths_excluding(inputs, &[out_dir.to_path_buf()])?;
+    // Distance parameters in the inputs' unit (feet CRSs), and the stages built from them.
+    let (unit_cfg, units) = units::for_inputs(cfg, &inputs)?;
+    let cfg = &unit_cfg;
+    let built;
+    let stages = match given_stages {
+        Some(s) if units.converted.is_empty() => s,
+        Some(_) => {
+            return Err(Error::Config(format!(
+                "the inputs are in {} ({}); stages built by the caller take metres",
+                units.unit.name, units.source
+            )))
+        }
+        None => {
+            built = cfg.build_stages()?;
+            &built[..]
+        }
+    };
     // MCAP drives are decoded and georeferenced first, into LAS parts whose headers carry the
     // exact bounds the tiler needs; the parts are removed when `staged` is dropped.
     // With `segment.method = "multicue"` every scan is segmented while it is decoded (where
@@ -163,6 +180,7 @@ fn run_scoped(
     summary.version = env!("CARGO_PKG_VERSION").into();
     summary.inputs = plan.set.files.len();
     summary.mcap = staged.reports.clone();
+    summary.units = Some(units);
     summary.points_in = promised.points_in;
     for t in summary.stages.values_mut() {
         t.finish(summary.points_in);

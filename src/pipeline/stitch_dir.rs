@@ -53,6 +53,8 @@ pub fn stitch_plan_dir(dir: &Path, overwrite: bool) -> Result<Summary> {
         )));
     }
     let cfg = Config::load(Some(&PlanFile::config_path(dir)), &[])?;
+    // The tasks ran in the inputs' unit (see `units`): so does their stitching.
+    let (cfg, _) = super::units::for_inputs(&cfg, &plan.inputs)?;
     let stages = cfg.build_stages()?;
     let mut out = OutputDir::open(dir, overwrite)?;
     let work = out.stage().to_path_buf();

@@ -75,6 +75,8 @@ pub struct Summary {
     /// MCAP inputs: decoding, georeferencing, skipped clouds and dropped points.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub mcap: Vec<crate::io::mcap::McapReport>,
+    /// The inputs' linear unit and the distance parameters converted to it.
+    pub units: Option<crate::io::crs::UnitsReport>,
     /// Inputs left out because they could not be read (`pipeline.keep_going`; their points
     /// are not in `points_in`).
     #[serde(skip_serializing_if = "Vec::is_empty")]
