@@ -4,13 +4,13 @@
 Mutates small real inputs (LAS, LAZ, MCAP, PCD) as a hostile user would — bit flips, byte
 overwrites, truncation, and header fields set to extreme values (point counts, offsets, record
 lengths, VLR lengths, EVLR offsets, scales, chunk tables, MCAP record lengths, PCD header
-lines) — and runs `tessera info` and a pass-through `tessera run` on each mutant under an
-address-space limit and a timeout.
+lines) — and runs `tessera info`, a pass-through `tessera run`, `tessera thin` and `tessera
+eval ground` on each mutant under an address-space limit and a timeout.
 
 A run passes when it exits 0, or exits non-zero with an "error:" line. It fails (a finding)
 when it is killed by a signal, panics (exit 101), aborts ("memory allocation of"), times out,
 uses more memory than the limit allows, or leaves `*.tmp` / staging files in its output
-directory after a failure.
+directory (`thin`, `eval`: the mutant's directory) after a failure.
 
 Usage: scripts/mutate_cli.py [--bin target/release/tessera] [--seconds 300] [--seed 1]
                              [--data ../shared/data] [--keep DIR]
@@ -38,6 +38,7 @@ def inputs(data):
     want = [
         ("pdal-autzen-samples", "sample_c.las"),
         ("pdal-autzen-samples", "interesting.las"),
+        ("pdal-autzen-samples", "autzen_trim.laz"),  # feet, OGC WKT + GeoTIFF keys
         ("isprs-filtertest", "samp24-utm.laz"),
         ("mcap-ouster-ros1", "ouster_os1_ros1profile.mcap"),
         ("pcl-tutorials", "min_cut_segmentation_tutorial.pcd"),
@@ -261,13 +262,18 @@ def main():
             with open(name, "wb") as f:
                 f.write(data)
             out = os.path.join(d, "out")
-            cmds = [[a.bin, "info", name, "-q"],
-                    [a.bin, "run", name, "--out", out, "-q", "--set",
-                     'stages.run=["stats"]', "--set", "pipeline.threads=2"]]
-            for cmd in cmds:
+            # info, a pass-through run, thin (a file written through a temporary file) and
+            # eval (the file as reference and result): failures must leave no temporary file.
+            cmds = [([a.bin, "info", name, "-q"], None),
+                    ([a.bin, "run", name, "--out", out, "-q", "--set",
+                      'stages.run=["stats"]', "--set", "pipeline.threads=2"], out),
+                    ([a.bin, "thin", "-q", "--spacing", "0.2", name,
+                      os.path.join(d, "thin.laz")], d),
+                    ([a.bin, "eval", "ground", "-q", "--reference", name, "--result", name], d)]
+            for cmd, where in cmds:
                 rc, err = run(cmd, a.timeout)
                 runs += 1
-                v = verdict(rc, err, out if cmd[1] == "run" else None)
+                v = verdict(rc, err, where)
                 if v:
                     k = len(findings)
                     keep = os.path.join(a.keep, f"finding{k:04d}{os.path.splitext(src)[1]}")
