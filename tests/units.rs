@@ -263,3 +263,48 @@ fn formats_6_to_10_carry_ogc_wkt() {
         }
     }
 }
+
+/// A unit tessera cannot know, a geographic CRS, and x/y and z in different units are errors
+/// naming the file (never a silent metre run); `crs.units` states the unit instead.
+#[test]
+fn unknown_geographic_and_mixed_units_are_refused() {
+    let Some(src) = common::data_file("isprs-filtertest/samp71-utm.laz") else {
+        return;
+    };
+    let d = tempfile::tempdir().unwrap();
+    let cases: [(&str, Vec<las::Vlr>, &str); 3] = [
+        (
+            "unknown.laz",
+            geokeys(&[(1024, 1), (3076, 9999)], &[]),
+            "ProjLinearUnitsGeoKey 9999",
+        ),
+        (
+            "geographic.laz",
+            geokeys(&[(1024, 2), (2048, 4326)], &[]),
+            "longitude/latitude",
+        ),
+        (
+            "mixed.laz",
+            geokeys(&[(1024, 1), (3076, 9003), (4099, 9001)], &[]),
+            "but z is in metre",
+        ),
+    ];
+    for (name, crs, needle) in cases {
+        let p = d.path().join(name);
+        to_unit(&src, &p, 1.0, 0.01, &crs);
+        let out = d.path().join(format!("{name}.out"));
+        let o = tessera()
+            .args(["-q", "run"])
+            .arg(&p)
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{name}: {err}");
+        assert!(err.contains(name) && err.contains(needle), "{name}: {err}");
+        assert!(common::tiles_in(&out).is_empty(), "{name}: tiles written");
+        let s = run(&p, &out, &["crs.units=\"metre\""]);
+        assert_eq!(s["units"]["source"], "crs.units", "{name}");
+    }
+}

@@ -52,8 +52,12 @@ pub fn for_inputs(cfg: &Config, inputs: &[PathBuf]) -> Result<(Config, UnitsRepo
                 let Ok(f) = crate::io::input::scan_file(p, 0) else {
                     continue;
                 };
-                let info = CrsInfo::of_header(&f.header)
-                    .map_err(|e| Error::bad_input(p, format!("CRS: {e}")))?;
+                let info = CrsInfo::of_header(&f.header).map_err(|e| {
+                    Error::bad_input(
+                        p,
+                        format!("CRS: {e}; set crs.units to state the coordinates' unit"),
+                    )
+                })?;
                 let Some(u) = unit_of(p, &info)? else {
                     continue;
                 };
