@@ -376,3 +376,12 @@ fn read_pcd_names_the_file() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Fuzzing regression (issue 23, `pcd` target): an ASCII body of one line under a header of
+/// 9311 × 9311 points reserved the header's count up front (4.5 GB, out of memory). The
+/// reservation is bounded by the body now and the short body is an error.
+#[test]
+fn ascii_count_beyond_the_body_is_an_error_not_a_huge_reservation() {
+    let pcd = b"# .N\r\nFIELDS x y z\r\nSIZE 4 4 4\r\nTYPE F F F\r\nCOUNT 11 1 1\r\nWIDTH 9311\r\nHEIGHT  9311\r\nDATA ascii\r\n44.250        -18.1    5.850\r\n 0";
+    assert!(parse_pcd(pcd).is_err());
+}
