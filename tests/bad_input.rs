@@ -359,3 +359,57 @@ fn layered_chunk_layer_sizes_are_bounded_by_the_chunk() {
     );
     expect_failure(&bad, "its layers claim");
 }
+
+/// Points whose GPS times interleave four far-apart sequences (four scanners of one
+/// vehicle), so the LAZ encoder codes "switch sequence" symbols.
+fn write_interleaved(path: &Path, format: u8) {
+    let mut b = las::Builder::from((1, if format >= 6 { 4 } else { 2 }));
+    b.point_format = las::point::Format::new(format).unwrap();
+    b.point_format.is_compressed = true;
+    let mut w = las::Writer::from_path(path, b.into_header().unwrap()).unwrap();
+    for i in 0..20_000u32 {
+        let s = (i.wrapping_mul(2_654_435_761) >> 7) % 4;
+        w.write_point(las::Point {
+            x: f64::from(i % 97),
+            y: f64::from(i % 89),
+            z: f64::from(i % 5),
+            gps_time: Some(1e8 * f64::from(s + 1) + f64::from(i) * 1e-5),
+            ..Default::default()
+        })
+        .unwrap();
+    }
+    w.close().unwrap();
+}
+
+/// laz 0.13 decoded each "switch GPS-time sequence" symbol by recursing, so a chunk whose
+/// bytes decode to switches forever (here: all 0xFF) overflowed the stack and aborted the
+/// run (found by fuzzing `las_file`). The patched decoder (vendor/laz) loops with a bound
+/// and reports corrupt data; valid switching streams still decode exactly.
+#[test]
+fn endless_gps_sequence_switches_are_an_error_not_a_stack_overflow() {
+    let d = tempfile::tempdir().unwrap();
+    for format in [1u8, 6] {
+        let good = d.path().join(format!("interleaved{format}.laz"));
+        write_interleaved(&good, format);
+        let all = las::Reader::from_path(&good).unwrap().read_all().unwrap();
+        assert_eq!(all.len(), 20_000);
+        for (i, p) in all.points().enumerate() {
+            let i = i as u32;
+            let s = (i.wrapping_mul(2_654_435_761) >> 7) % 4;
+            let want = 1e8 * f64::from(s + 1) + f64::from(i) * 1e-5;
+            assert_eq!(p.unwrap().gps_time, Some(want), "format {format} point {i}");
+        }
+
+        let mut m = std::fs::read(&good).unwrap();
+        let table_at = u32::from_le_bytes(m[96..100].try_into().unwrap()) as usize;
+        let record = usize::from(u16::from_le_bytes([m[105], m[106]]));
+        let chunks_end = i64::from_le_bytes(m[table_at..table_at + 8].try_into().unwrap());
+        // Chunk 0 after its raw first point (formats 6+: also its count and 9 layer sizes).
+        let header = if format >= 6 { 4 + 9 * 4 } else { 0 };
+        let from = table_at + 8 + record + header;
+        m[from..chunks_end as usize].fill(0xFF);
+        let bad = d.path().join(format!("switches{format}.laz"));
+        std::fs::write(&bad, &m).unwrap();
+        expect_failure(&bad, "sequence switches");
+    }
+}
