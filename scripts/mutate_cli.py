@@ -51,6 +51,29 @@ def inputs(data):
     return out
 
 
+def layered_laz(path):
+    """A LAS 1.4 format-7 LAZ (layered chunks) whose GPS times interleave four sequences,
+    so mutants reach the layered decoders and the GPS sequence switches; needs laspy."""
+    try:
+        import laspy
+        import numpy as np
+    except ImportError:
+        return None
+    rng = np.random.default_rng(7)
+    n = 60_000
+    h = laspy.LasHeader(point_format=7, version="1.4")
+    h.scales = [0.01] * 3
+    h.offsets = [0.0] * 3
+    las = laspy.LasData(h)
+    las.x = rng.uniform(0, 50, n)
+    las.y = rng.uniform(0, 50, n)
+    las.z = rng.uniform(0, 5, n)
+    las.gps_time = 1e8 * (rng.integers(0, 4, n) + 1) + np.arange(n) * 1e-5
+    las.red = rng.integers(0, 65535, n)
+    las.write(path, laz_backend=laspy.LazBackend.Lazrs)
+    return path
+
+
 def put(buf, off, fmt, value):
     size = struct.calcsize(fmt)
     if 0 <= off and off + size <= len(buf):
@@ -245,10 +268,13 @@ def main():
     a = ap.parse_args()
     rng = random.Random(a.seed)
     files = inputs(a.data)
+    os.makedirs(a.keep, exist_ok=True)
+    layered = layered_laz(os.path.join(a.keep, "layered7.laz"))
+    if layered:
+        files.append(layered)
     if not files:
         print(f"no inputs under {a.data}", file=sys.stderr)
         return 2
-    os.makedirs(a.keep, exist_ok=True)
     originals = {f: open(f, "rb").read() for f in files}
     t_end = time.time() + a.seconds
     runs = 0
