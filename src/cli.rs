@@ -116,6 +116,13 @@ pub enum Command {
         #[arg(long)]
         overwrite: bool,
     },
+    /// Rebuild `report.html` in the output directory of a finished run (or stitch) from its
+    /// summary.json and tiles: top views by class, segment and height with the tile grid,
+    /// errors and a confusion matrix when the tiles carry a gt_class attribute, stage costs.
+    Report {
+        /// The output directory.
+        dir: PathBuf,
+    },
     /// Write Slurm batch scripts for a region plan: a job array of its tasks and a stitch job
     /// that runs after all of them succeeded (DIR/slurm/).
     Slurm {

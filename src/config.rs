@@ -69,6 +69,8 @@ pub struct OutputParams {
     pub overwrite: bool,
     /// Start over instead of resuming an interrupted run in the output directory.
     pub restart: bool,
+    /// Write `report.html` (overview rasters, tile grid, stage costs) when the run finishes.
+    pub report: bool,
 }
 
 /// Stage selection.

@@ -46,8 +46,9 @@ fn run_cmd(out: &Path, inputs: &[PathBuf], extra: &[&str]) -> Command {
     c
 }
 
-/// Every output file (tiles, segment tables) with its bytes; bookkeeping and the summary
-/// (timings) left out.
+/// Every output file (tiles, segment tables) with its bytes; bookkeeping, the summary and
+/// the report (timings) left out, but the report's images in: a resumed run draws the
+/// tiles it reuses from their files, the rest while writing, and must draw the same.
 fn outputs(dir: &Path) -> Vec<(String, Vec<u8>)> {
     let mut v: Vec<(String, Vec<u8>)> = std::fs::read_dir(dir)
         .unwrap()
@@ -55,7 +56,19 @@ fn outputs(dir: &Path) -> Vec<(String, Vec<u8>)> {
         .map(|e| e.file_name().to_string_lossy().into_owned())
         .filter(|n| !n.starts_with(".tessera") && n != "summary.json")
         .map(|n| {
-            let bytes = std::fs::read(dir.join(&n)).unwrap();
+            let mut bytes = std::fs::read(dir.join(&n)).unwrap();
+            if n == "report.html" {
+                let page = String::from_utf8(bytes).unwrap();
+                // The images (the tile grid's tooltips carry timings).
+                bytes = page
+                    .split(" src=\"")
+                    .skip(1)
+                    .map(|f| &f[..f.find('"').unwrap()])
+                    .collect::<Vec<_>>()
+                    .concat()
+                    .into_bytes();
+                assert!(!bytes.is_empty(), "report.html without pictures");
+            }
             (n, bytes)
         })
         .collect();

@@ -30,6 +30,19 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<()> {
             (None, None) => Err(tessera::Error::Config("run: --out is required".into()).into()),
         },
         Command::Stitch { dir, overwrite } => run::stitch(&dir, overwrite, quiet),
+        Command::Report { dir } => {
+            let c = tessera::report::html::regenerate(&dir)?;
+            if !quiet {
+                println!(
+                    "{}: {} points in {} cells, {:.2} s",
+                    dir.join(tessera::report::html::REPORT).display(),
+                    c.points,
+                    c.pixels,
+                    c.seconds
+                );
+            }
+            Ok(())
+        }
         Command::Slurm {
             dir,
             tasks,

@@ -125,6 +125,62 @@ pub fn set_wkt(header: &mut las::Header, template: &las::Header) -> Result<()> {
     }
 }
 
+/// Name of the per-point truth class attribute (synthetic scenes, reference data).
+pub const TRUTH_FIELD: &str = "gt_class";
+
+/// Where a record's coordinates, class, segment id and truth class are (what the run
+/// report draws), read from a LAS header.
+#[derive(Debug, Clone, Copy)]
+pub struct RecordFields {
+    /// Bytes per record.
+    pub record_len: usize,
+    /// Scale/offset of x, y, z.
+    pub transforms: las::Vector<las::Transform>,
+    /// Byte of the classification.
+    pub class_at: usize,
+    /// Its bits (5 in formats 0–5).
+    pub class_mask: u8,
+    /// Offset and width (4 or 8) of the `segment_id` attribute.
+    pub segment: Option<(usize, usize)>,
+    /// Offset of the `gt_class` attribute (one byte).
+    pub truth: Option<usize>,
+}
+
+impl RecordFields {
+    /// The fields of `h`'s records.
+    pub fn of_header(h: &las::Header) -> RecordFields {
+        let fmt = h.point_format();
+        let record_len = usize::from(fmt.len());
+        let eb_start = record_len - usize::from(fmt.extra_bytes);
+        let fields = h
+            .all_vlrs()
+            .find(|v| v.user_id == extra::USER_ID && v.record_id == extra::RECORD_ID)
+            .map(|v| extra::fields(&v.data))
+            .unwrap_or_default();
+        let find = |name: &str| {
+            fields.iter().find_map(|f| {
+                (f.name == name && eb_start + f.offset + f.size <= record_len)
+                    .then_some((eb_start + f.offset, f.size))
+            })
+        };
+        RecordFields {
+            record_len,
+            transforms: *h.transforms(),
+            class_at: if fmt.is_extended { 16 } else { 15 },
+            class_mask: if fmt.is_extended { 0xFF } else { 0x1F },
+            segment: find(SEGMENT_ID).filter(|s| matches!(s.1, 4 | 8)),
+            truth: find(TRUTH_FIELD).filter(|s| s.1 == 1).map(|s| s.0),
+        }
+    }
+}
+
+/// Sees every block of records a [`TileWriter`] writes, final ids included (the run
+/// report's rasters are drawn this way, without decoding the tiles again).
+pub trait WrittenRecords: Send + Sync + std::fmt::Debug {
+    /// `records` (whole records as `fields` describes them) were written into tile `tile`.
+    fn written(&self, tile: &str, fields: &RecordFields, records: &[u8]);
+}
+
 /// Per-tile segmentation results handed to [`TileWriter::prepare`].
 #[derive(Debug, Clone, Copy)]
 pub struct TileSegments<'a> {
@@ -146,6 +202,9 @@ pub struct TileWriter {
     segment_field: SegmentField,
     id_type: SegmentIdType,
     extension: &'static str,
+    /// Where the records written are reported, if anywhere.
+    observer: Option<std::sync::Arc<dyn WrittenRecords>>,
+    fields: RecordFields,
 }
 
 impl TileWriter {
@@ -221,6 +280,8 @@ impl TileWriter {
             set_wkt(&mut header, template)?;
         }
         Ok(TileWriter {
+            fields: RecordFields::of_header(&header),
+            observer: None,
             header,
             layout: layout.clone(),
             out_layout,
@@ -237,6 +298,11 @@ impl TileWriter {
             SegmentField::InPlace(o) => Some(o),
             SegmentField::Append => Some(self.layout.record_len),
         }
+    }
+
+    /// Reports every block of records written to `observer`.
+    pub fn observe(&mut self, observer: std::sync::Arc<dyn WrittenRecords>) {
+        self.observer = Some(observer);
     }
 
     /// Type of the segment id attribute.
@@ -302,7 +368,7 @@ impl TileWriter {
         };
         let records = self.with_ids(records, ids);
         pending.files.push((path.clone(), file));
-        if let Err(e) = self.write_to(&path, &records) {
+        if let Err(e) = self.write_to(&path, name, &records) {
             pending.abandon();
             return Err(e);
         }
@@ -416,6 +482,9 @@ impl TileWriter {
                     let id = global(u64::from_le_bytes(raw))?;
                     rec[off..off + w].copy_from_slice(&id.to_le_bytes()[..w]);
                 }
+                if let Some(o) = &self.observer {
+                    o.written(&d.name, &self.fields, &buf);
+                }
                 let data = PointDataBuilder::new()
                     .with_format(self.out_layout.format)
                     .with_transforms(self.out_layout.transforms)
@@ -464,7 +533,7 @@ impl TileWriter {
     // tile if the process dies; syncing every tile would cost more than the compression.
     //
     // Written in blocks through one reused slab so the caller keeps (and reuses) its buffer.
-    fn write_to(&self, tmp: &Path, records: &[u8]) -> Result<()> {
+    fn write_to(&self, tmp: &Path, name: &str, records: &[u8]) -> Result<()> {
         const BLOCK: usize = 64 * 1024;
         let rl = self.out_layout.record_len;
         let mut writer = self.open_writer(tmp)?;
@@ -475,6 +544,9 @@ impl TileWriter {
         for block in records.chunks(BLOCK * rl) {
             slab.resize_for(block.len() / rl).copy_from_slice(block);
             writer.write_points(&slab)?;
+            if let Some(o) = &self.observer {
+                o.written(name, &self.fields, block);
+            }
         }
         Self::close_writer(writer, tmp)
     }

@@ -306,6 +306,42 @@ pub fn lock_is_held(dir: &Path) -> bool {
     matches!(f.try_lock(), Err(TryLockError::WouldBlock))
 }
 
+/// Rewrites `name` in a finished run's directory with `bytes` (atomically) and records it in
+/// the run's journal, before (the name) and after (its size and time), so a later
+/// `--overwrite` run still takes it for tessera's and replaces it. Used by `tessera report`.
+pub fn rewrite_in_finished_run(dir: &Path, name: &str, bytes: &[u8]) -> Result<()> {
+    check_name(name)?;
+    if lock_is_held(dir) {
+        return Err(Error::OutputDir {
+            path: dir.to_path_buf(),
+            reason: "a running tessera holds this directory; try again when it has finished".into(),
+            usage: false,
+        });
+    }
+    let jpath = dir.join(JOURNAL);
+    let append = |line: String| -> Result<()> {
+        if !jpath.exists() {
+            return Ok(());
+        }
+        let mut f = std::fs::OpenOptions::new()
+            .append(true)
+            .open(&jpath)
+            .map_err(|e| Error::io(&jpath, e))?;
+        f.write_all(line.as_bytes())
+            .and_then(|_| f.sync_all())
+            .map_err(|e| Error::io(&jpath, e))
+    };
+    append(format!("file\t{name}\n"))?;
+    let path = dir.join(name);
+    let tmp = dir.join(format!(".{name}.tmp"));
+    if let Err(e) = std::fs::write(&tmp, bytes).and_then(|_| std::fs::rename(&tmp, &path)) {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(Error::io(&path, e));
+    }
+    let (len, mtime) = stamp(&std::fs::metadata(&path).map_err(|e| Error::io(&path, e))?);
+    append(format!("stamp\t{len}\t{mtime}\t{name}\n"))
+}
+
 /// Size and modification time (ns since the epoch) of a file, for the journal.
 fn stamp(m: &std::fs::Metadata) -> (u64, i128) {
     use std::os::unix::fs::MetadataExt;
@@ -527,6 +563,14 @@ impl OutputDir {
     /// Removes the resume directory (the run finished).
     fn clear_resume_dir(&self) -> Result<()> {
         remove_resume_dir(&self.dir.join(RESUME_DIR))
+    }
+
+    /// Writes `bytes` to the staging directory and commits them under `name` (recorded in
+    /// the journal like a tile, so `--overwrite` replaces it).
+    pub fn commit_bytes(&mut self, name: &str, bytes: &[u8]) -> Result<()> {
+        let staged = self.stage().join(name);
+        std::fs::write(&staged, bytes).map_err(|e| Error::io(&staged, e))?;
+        self.commit(&[(staged, name.to_string())])
     }
 
     /// Files committed so far.

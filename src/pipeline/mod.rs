@@ -31,6 +31,7 @@ pub use reader::ProgressFn;
 use crate::config::Config;
 use crate::error::{Error, Result};
 use crate::io::workspace::{OutputDir, WorkDir};
+use crate::report::overview::OverviewSink;
 use crate::report::{peak_rss_mb, Summary};
 use crate::stages::Stage;
 use crate::tiling::{schedule, TileJob};
@@ -152,7 +153,14 @@ fn run_scoped(
         &mcap,
         cfg.pipeline.threads,
     )?;
-    let plan = RunPlan::resolve(cfg, stages, &staged.paths, &work_base)?;
+    let mut plan = RunPlan::resolve(cfg, stages, &staged.paths, &work_base)?;
+    // The report's rasters are drawn from the records as the tiles are written. (A task's
+    // tiles are not the region's: `tessera stitch` writes the region's report.)
+    let sink = (scope.is_none() && cfg.output.report)
+        .then(|| std::sync::Arc::new(OverviewSink::new(plan.input_bounds())));
+    if let Some(s) = &sink {
+        plan.observer = Some(s.clone());
+    }
     // The journal of finished cells: an interrupted run of the same fingerprint is resumed.
     let mut fingerprint = journal::Fingerprint::of(cfg, &inputs, &plan.grid);
     if let Some(sc) = scope {
@@ -209,6 +217,9 @@ fn run_scoped(
             "the input headers promise {} points to read and {} to write; {} were read, {} written and {} in failed tiles",
             promised.read, summary.points_in, summary.points_read, summary.points_out, summary.points_failed
         )));
+    }
+    if let Some(s) = &sink {
+        write_report(&mut out, &mut summary, Some(s))?;
     }
     let json = serde_json::to_vec_pretty(&summary).map_err(|e| Error::Internal(e.to_string()))?;
     // The run's files are all in place; the summary comes last and marks the run finished.
@@ -370,4 +381,31 @@ fn execute(
             points_in,
         },
     ))
+}
+
+/// Builds `report.html` from the tiles in place and commits it (before the summary, which
+/// stays the last file); its cost goes into the summary as `seconds.report` (not part of
+/// `seconds.total`).
+pub(crate) fn write_report(
+    out: &mut OutputDir,
+    summary: &mut Summary,
+    sink: Option<&OverviewSink>,
+) -> Result<()> {
+    let value = serde_json::to_value(&*summary).map_err(|e| Error::Internal(e.to_string()))?;
+    let drawn = sink.map(OverviewSink::take);
+    let (html, cost) = crate::report::html::build(out.path(), &value, drawn)?;
+    out.commit_bytes(crate::report::html::REPORT, html.as_bytes())?;
+    summary.seconds.insert("report".into(), cost.seconds);
+    summary.report_raster = Some(cost.geometry);
+    // The report's memory counts against the budget like the rest of the run.
+    summary.peak_rss_mb = peak_rss_mb().unwrap_or(summary.peak_rss_mb);
+    tracing::info!(
+        "report: {} ({} points in {} cells, {} tiles decoded again, {:.2} s)",
+        out.path().join(crate::report::html::REPORT).display(),
+        cost.points,
+        cost.pixels,
+        cost.decoded_tiles,
+        cost.seconds
+    );
+    Ok(())
 }

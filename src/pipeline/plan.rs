@@ -45,6 +45,8 @@ pub struct RunPlan {
     pub laz: bool,
     /// Where spill files go (inside the run's work directory).
     pub spill_dir: PathBuf,
+    /// Sees every record block the tile writer writes (the report's raster), if set.
+    pub observer: Option<std::sync::Arc<dyn crate::io::output::WrittenRecords>>,
 }
 
 /// What the workers and the writer need to stitch segments across tiles.
@@ -139,6 +141,7 @@ impl RunPlan {
             segment_ids: segmenter.map(|_| id_type),
             laz: cfg.output.format == "laz",
             spill_dir: work_base.join("spill"),
+            observer: None,
             set,
             skipped_inputs,
             keep_going: cfg.pipeline.keep_going,
@@ -147,12 +150,33 @@ impl RunPlan {
 
     /// The writer of the run's output tiles.
     pub fn tile_writer(&self) -> Result<TileWriter> {
-        TileWriter::new(
+        let mut w = TileWriter::new(
             &self.set.template,
             &self.set.layout,
             self.laz,
             self.segment_ids,
-        )
+        )?;
+        if let Some(o) = &self.observer {
+            w.observe(o.clone());
+        }
+        Ok(w)
+    }
+
+    /// The region the inputs cover: [min x, min y, max x, max y] of their headers.
+    pub fn input_bounds(&self) -> [f64; 4] {
+        let mut b = [
+            f64::INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NEG_INFINITY,
+        ];
+        for f in self.set.files.iter().filter(|f| f.points > 0) {
+            b[0] = b[0].min(f.bounds.x0);
+            b[1] = b[1].min(f.bounds.y0);
+            b[2] = b[2].max(f.bounds.x1);
+            b[3] = b[3].max(f.bounds.y1);
+        }
+        b
     }
 
     /// How a worker splits a job too big for its share of the budget.

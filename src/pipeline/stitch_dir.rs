@@ -19,6 +19,7 @@ use crate::config::Config;
 use crate::error::{Error, Result};
 use crate::io::workspace::{remove_run_dir, OutputDir, RESUME_DIR, SUMMARY};
 use crate::model::CellKey;
+use crate::report::overview::OverviewSink;
 use crate::report::{peak_rss_mb, Summary};
 use crate::stitch::CellRelease;
 use std::collections::BTreeMap;
@@ -58,7 +59,14 @@ pub fn stitch_plan_dir(dir: &Path, overwrite: bool) -> Result<Summary> {
     let stages = cfg.build_stages()?;
     let mut out = OutputDir::open(dir, overwrite)?;
     let work = out.stage().to_path_buf();
-    let run = RunPlan::resolve(&cfg, &stages, &plan.inputs, &work)?;
+    let mut run = RunPlan::resolve(&cfg, &stages, &plan.inputs, &work)?;
+    let sink = cfg
+        .output
+        .report
+        .then(|| std::sync::Arc::new(OverviewSink::new(run.input_bounds())));
+    if let Some(s) = &sink {
+        run.observer = Some(s.clone());
+    }
     if run.set.total_points != plan.points {
         return Err(Error::Config(format!(
             "{}: the inputs now announce {} points, the plan {}; plan again",
@@ -139,6 +147,9 @@ pub fn stitch_plan_dir(dir: &Path, overwrite: bool) -> Result<Summary> {
             "the plan's inputs announce {} points; the tasks wrote {} and failed {}",
             plan.points, summary.points_out, summary.points_failed
         )));
+    }
+    if let Some(s) = &sink {
+        super::write_report(&mut out, &mut summary, Some(s))?;
     }
     let json = serde_json::to_vec_pretty(&summary).map_err(|e| Error::Internal(e.to_string()))?;
     out.finish(&json)?;

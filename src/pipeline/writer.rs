@@ -13,6 +13,7 @@ use crate::report::{FailedTile, Summary, TileSummary};
 use crate::stages::TileReport;
 use crate::stitch::{BorderSummary, CellKey, CellRelease, StitchParams, Stitcher};
 use crossbeam_channel::Receiver;
+use std::collections::BTreeMap;
 use std::collections::HashMap;
 use std::path::Path;
 use std::time::Instant;
@@ -420,6 +421,11 @@ impl<'a> Collector<'a> {
             points: meta.n_core,
             buffer_points: meta.buffer_points,
             stats: meta.report.stats,
+            seconds: if meta.reused {
+                BTreeMap::new()
+            } else {
+                meta.report.seconds
+            },
         });
     }
 }

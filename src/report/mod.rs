@@ -1,4 +1,7 @@
-//! Run summary (`summary.json`) and process memory figures.
+//! Run summary (`summary.json`), process memory figures and the run's `report.html`.
+
+pub mod html;
+pub mod overview;
 
 use crate::budget::BudgetPlan;
 use serde::Serialize;
@@ -25,6 +28,9 @@ pub struct TileSummary {
     pub buffer_points: u64,
     /// Per-stage statistics.
     pub stats: BTreeMap<String, serde_json::Value>,
+    /// Wall seconds per stage on this tile (empty for a tile a resumed run reused).
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub seconds: BTreeMap<String, f64>,
 }
 
 /// The run summary written to `summary.json`.
@@ -93,6 +99,9 @@ pub struct Summary {
     /// Tiles this run processed (all of them, unless it resumed an interrupted run).
     #[serde(default)]
     pub tiles_recomputed: usize,
+    /// The cells of report.html's rasters (`tessera report` draws the same).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub report_raster: Option<overview::Geometry>,
 }
 
 /// One stage's cost over a run (summary.json `stages`).
