@@ -1,4 +1,5 @@
-//! Progress reporting: a bar on a terminal, a log line every few seconds otherwise.
+//! Progress reporting: a bar on a terminal, a log line every few seconds otherwise (nightly
+//! logs), both with the rate and the time left.
 
 use std::io::IsTerminal;
 
@@ -6,6 +7,7 @@ use std::io::IsTerminal;
 pub struct Progress {
     bar: Option<indicatif::ProgressBar>,
     last: std::sync::Mutex<std::time::Instant>,
+    start: std::time::Instant,
     quiet: bool,
 }
 
@@ -16,7 +18,7 @@ impl Progress {
             let b = indicatif::ProgressBar::new(0);
             b.set_style(
                 indicatif::ProgressStyle::with_template(
-                    "{elapsed_precise} [{bar:40}] {human_pos}/{human_len} points ({per_sec}, eta {eta})",
+                    "{elapsed_precise} [{bar:40}] {human_pos}/{human_len} points processed ({per_sec}, eta {eta})",
                 )
                 .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
             );
@@ -25,11 +27,12 @@ impl Progress {
         Progress {
             bar,
             last: std::sync::Mutex::new(std::time::Instant::now()),
+            start: std::time::Instant::now(),
             quiet,
         }
     }
 
-    /// Points read so far of `total`.
+    /// Points processed so far of `total` (a task of a region plan: points read).
     pub fn update(&self, done: u64, total: u64) {
         if let Some(b) = &self.bar {
             b.set_length(total);
@@ -38,9 +41,17 @@ impl Progress {
             let mut last = self.last.lock().unwrap_or_else(|p| p.into_inner());
             if last.elapsed().as_secs_f64() >= 5.0 || done == total {
                 *last = std::time::Instant::now();
+                let secs = self.start.elapsed().as_secs_f64().max(1e-3);
+                let rate = done as f64 / secs;
+                let eta = if rate > 0.0 {
+                    format!("{:.0} s", total.saturating_sub(done) as f64 / rate)
+                } else {
+                    "?".into()
+                };
                 tracing::info!(
-                    "read {done}/{total} points ({:.1} %)",
-                    100.0 * done as f64 / total.max(1) as f64
+                    "{done}/{total} points processed ({:.1} %), {:.3} M points/s, eta {eta}",
+                    100.0 * done as f64 / total.max(1) as f64,
+                    rate / 1e6
                 );
             }
         }

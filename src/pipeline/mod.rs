@@ -271,13 +271,17 @@ fn execute(
     let (res_tx, res_rx) = bounded::<ToWriter>(1);
     let writer = plan.tile_writer()?;
     let stage_dir = out.stage().to_path_buf();
+    // Progress is the core points processed (the writer's count) of a whole run: reading
+    // finishes long before the work when the tiler holds tiles. A task's core points are
+    // known only once read, so a task reports its reading.
+    let silent = |_: u64, _: u64| {};
     let reader = Reader {
         files: &set.files,
         order: &order,
         layout: &set.layout,
         chunk_points: budget.chunk_points,
         total_points: to_read,
-        progress,
+        progress: if scope.is_some() { progress } else { &silent },
     };
     let tiler = TilerRole {
         grid: plan.grid,
@@ -316,6 +320,9 @@ fn execute(
         Some(journal),
     );
     collector.keep_deferred = scope.is_some();
+    if scope.is_none() {
+        collector.progress = Some((progress, set.total_points));
+    }
     collector.spill_frontier_beyond(plan.budget.stitch_bytes);
     let channels = TilerChannels {
         chunk_rx,

@@ -154,6 +154,9 @@ pub(super) struct Collector<'a> {
     pub summary: Summary,
     pub write_s: f64,
     pub stitch_s: f64,
+    /// Reports core points processed (written, deferred or failed) of a total.
+    pub progress: Option<(super::ProgressFn<'a>, u64)>,
+    processed: u64,
 }
 
 impl<'a> Collector<'a> {
@@ -171,6 +174,8 @@ impl<'a> Collector<'a> {
             stitcher: stitch.map(|(p, strip_m)| Stitcher::new(p, strip_m)),
             journal,
             open_cells: HashMap::new(),
+            progress: None,
+            processed: 0,
             keep_deferred: false,
             summary: Summary::default(),
             write_s: 0.0,
@@ -204,6 +209,13 @@ impl<'a> Collector<'a> {
             if let Err(e) = self.finish() {
                 failure.set(e);
             }
+        }
+    }
+
+    fn advance(&mut self, core_points: u64) {
+        self.processed += core_points;
+        if let Some((report, total)) = self.progress {
+            report(self.processed, total);
         }
     }
 
@@ -258,6 +270,7 @@ impl<'a> Collector<'a> {
                 }
                 let s = &mut self.summary;
                 s.points_failed += failed.points;
+                let points = failed.points;
                 s.failed_tiles.push(failed);
                 s.buffer_points_thinned += buffer_thinned;
                 if let Some(root) = split_root {
@@ -265,9 +278,11 @@ impl<'a> Collector<'a> {
                         s.split_tiles.push(root);
                     }
                 }
+                self.advance(points);
             }
             ToWriter::Tile(p) => {
                 let Processed { meta, output } = *p;
+                self.advance(meta.n_core);
                 let journaled = self.journal.is_some() && !meta.reused;
                 match output {
                     TileOutput::Written(pending) => {

@@ -274,7 +274,11 @@ fn maps(h: &mut String, s: &Value, ov: &Overview, tiles: &[TileExtent]) -> Resul
     figure(
         h,
         "overview-height",
-        &format!("Height of the highest point, {lo:.1} (blue) to {hi:.1} (yellow), hillshaded"),
+        &format!(
+            "Height of the highest point, {:.1} (blue) to {:.1} (yellow), hillshaded",
+            lo + 0.0,
+            hi + 0.0
+        ),
         &png(ov.height_rgb())?,
         "",
     );
