@@ -71,6 +71,8 @@ pub struct OutputParams {
     pub restart: bool,
     /// Write `report.html` (overview rasters, tile grid, stage costs) when the run finishes.
     pub report: bool,
+    /// Also write one LAS/LAZ per class code across all tiles.
+    pub per_class: bool,
 }
 
 /// Stage selection.

@@ -486,3 +486,37 @@ pub struct ExtraField {
     /// Size in bytes.
     pub size: usize,
 }
+
+/// Name of an ASPRS LAS 1.4 class code, or of tessera's street-level codes (64–71).
+pub fn class_name(code: u8) -> &'static str {
+    match code {
+        0 => "created, never classified",
+        1 => "unclassified",
+        2 => "ground",
+        3 => "low vegetation",
+        4 => "medium vegetation",
+        5 => "high vegetation",
+        6 => "building",
+        7 => "low point (noise)",
+        8 => "reserved / model key",
+        9 => "water",
+        10 => "rail",
+        11 => "road surface",
+        12 => "reserved / overlap",
+        13 => "wire guard",
+        14 => "wire conductor",
+        15 => "transmission tower",
+        16 => "wire connector",
+        17 => "bridge deck",
+        18 => "high noise",
+        64 => "cycle path",
+        65 => "footpath",
+        66 => "kerb",
+        67 => "grass / terrain",
+        68 => "street furniture",
+        69 => "pole",
+        70 => "vehicle",
+        71 => "lane marking",
+        _ => "user class",
+    }
+}

@@ -257,3 +257,100 @@ fn report_command_rebuilds_the_page_and_overwrite_still_replaces_it() {
     assert_eq!(o.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&o.stderr).contains("summary.json"));
 }
+
+/// Raw records (uncompressed, as written) of `files`, grouped by class, each group sorted.
+fn records_by_class(files: &[PathBuf]) -> std::collections::BTreeMap<u8, Vec<Vec<u8>>> {
+    let mut by: std::collections::BTreeMap<u8, Vec<Vec<u8>>> = Default::default();
+    for f in files {
+        let (fmt, recs) = common::raw_records(f);
+        let at = if fmt.is_extended { 16 } else { 15 };
+        let mask = if fmt.is_extended { 0xFF } else { 0x1F };
+        for r in recs {
+            by.entry(r[at] & mask).or_default().push(r);
+        }
+    }
+    for v in by.values_mut() {
+        v.sort();
+    }
+    by
+}
+
+/// `output.per_class`: one file per class holding exactly that class's records of all tiles
+/// (final segment ids included), listed in summary.json and recorded in the journal (an
+/// `--overwrite` run replaces them); the same files when built from the tile files (the
+/// path of tiles a resumed run reuses, or a stitch links).
+#[test]
+fn per_class_files_hold_every_record_of_their_class() {
+    let d = tempfile::tempdir().unwrap();
+    let scene = d.path().join("scene");
+    let o = tessera()
+        .args(["-q", "synth", "--length-m", "40", "--out"])
+        .arg(&scene)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let out = d.path().join("out");
+    let run = |extra: &[&str]| {
+        tessera()
+            .args(["-q", "run"])
+            .arg(&scene)
+            .arg("--out")
+            .arg(&out)
+            .args(["--set", "output.per_class=true"])
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let o = run(&[]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let all = common::tiles_in(&out);
+    let (class_files, tiles): (Vec<PathBuf>, Vec<PathBuf>) = all.into_iter().partition(|p| {
+        p.file_name()
+            .is_some_and(|n| n.to_string_lossy().starts_with("class_"))
+    });
+    assert!(
+        tiles.len() >= 2 && class_files.len() >= 4,
+        "{class_files:?}"
+    );
+    let want = records_by_class(&tiles);
+    let got = records_by_class(&class_files);
+    assert_eq!(
+        want.keys().collect::<Vec<_>>(),
+        got.keys().collect::<Vec<_>>()
+    );
+    for (class, recs) in &want {
+        assert!(recs == &got[class], "class {class}: records differ");
+    }
+    let s: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let listed = s["class_files"].as_array().unwrap();
+    assert_eq!(listed.len(), class_files.len());
+    for c in listed {
+        let code = c["class"].as_u64().unwrap() as u8;
+        assert_eq!(c["points"].as_u64().unwrap() as usize, want[&code].len());
+        assert!(out.join(c["file"].as_str().unwrap()).is_file());
+    }
+    let o = run(&["--overwrite"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(records_by_class(&class_files) == got);
+
+    // Built from the tile files instead (reused / linked tiles): the same records.
+    let rebuilt = d.path().join("rebuilt");
+    let mut dir = tessera::io::workspace::OutputDir::open(&rebuilt, false).unwrap();
+    let header = las::Reader::from_path(&tiles[0]).unwrap().header().clone();
+    let c = tessera::io::perclass::ClassFiles::new(&header, true, dir.stage()).unwrap();
+    let named: Vec<(String, PathBuf)> = tiles
+        .iter()
+        .map(|t| {
+            (
+                t.file_stem().unwrap().to_string_lossy().into_owned(),
+                t.clone(),
+            )
+        })
+        .collect();
+    c.add_files(&named).unwrap();
+    let written = c.finish(&mut dir).unwrap();
+    assert_eq!(written.len(), class_files.len());
+    let again: Vec<PathBuf> = written.iter().map(|w| rebuilt.join(&w.file)).collect();
+    assert!(records_by_class(&again) == got);
+}

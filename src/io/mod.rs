@@ -11,6 +11,7 @@ pub mod laswrite;
 pub mod mcap;
 pub mod output;
 pub mod pcd;
+pub mod perclass;
 pub mod workspace;
 
 pub use input::{scan_inputs, InputFile, InputSet};

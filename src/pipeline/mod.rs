@@ -30,6 +30,7 @@ pub use reader::ProgressFn;
 
 use crate::config::Config;
 use crate::error::{Error, Result};
+use crate::io::perclass::ClassFiles;
 use crate::io::workspace::{OutputDir, WorkDir};
 use crate::report::overview::OverviewSink;
 use crate::report::{peak_rss_mb, Summary};
@@ -154,13 +155,7 @@ fn run_scoped(
         cfg.pipeline.threads,
     )?;
     let mut plan = RunPlan::resolve(cfg, stages, &staged.paths, &work_base)?;
-    // The report's rasters are drawn from the records as the tiles are written. (A task's
-    // tiles are not the region's: `tessera stitch` writes the region's report.)
-    let sink = (scope.is_none() && cfg.output.report)
-        .then(|| std::sync::Arc::new(OverviewSink::new(plan.input_bounds())));
-    if let Some(s) = &sink {
-        plan.observer = Some(s.clone());
-    }
+    let Observers { sink, classes } = observers(&mut plan, cfg, scope.is_some(), &out)?;
     // The journal of finished cells: an interrupted run of the same fingerprint is resumed.
     let mut fingerprint = journal::Fingerprint::of(cfg, &inputs, &plan.grid);
     if let Some(sc) = scope {
@@ -217,6 +212,9 @@ fn run_scoped(
             "the input headers promise {} points to read and {} to write; {} were read, {} written and {} in failed tiles",
             promised.read, summary.points_in, summary.points_read, summary.points_out, summary.points_failed
         )));
+    }
+    if let Some(c) = &classes {
+        finish_class_files(c, &mut out, &mut summary)?;
     }
     if let Some(s) = &sink {
         write_report(&mut out, &mut summary, Some(s))?;
@@ -415,4 +413,51 @@ pub(crate) fn write_report(
         cost.seconds
     );
     Ok(())
+}
+
+/// Completes the per-class files with the tiles the run did not write itself (reused from an
+/// interrupted run, or a task's) and commits them.
+pub(crate) fn finish_class_files(
+    classes: &ClassFiles,
+    out: &mut OutputDir,
+    summary: &mut Summary,
+) -> Result<()> {
+    let t = Instant::now();
+    let files: Vec<(String, PathBuf)> = summary
+        .tile_list
+        .iter()
+        .map(|t| (t.name.clone(), out.path().join(&t.file)))
+        .collect();
+    classes.add_files(&files)?;
+    summary.class_files = classes.finish(out)?;
+    summary
+        .seconds
+        .insert("class_files".into(), t.elapsed().as_secs_f64());
+    Ok(())
+}
+
+/// The observers of the records the run writes: the report's raster and the per-class files.
+/// The report's rasters are drawn from the records as the tiles are written. (A task's tiles
+/// are not the region's: `tessera stitch` writes the region's report and class files.)
+fn observers(plan: &mut RunPlan, cfg: &Config, task: bool, out: &OutputDir) -> Result<Observers> {
+    let sink = (!task && cfg.output.report)
+        .then(|| std::sync::Arc::new(OverviewSink::new(plan.input_bounds())));
+    if let Some(s) = &sink {
+        plan.observers.push(s.clone());
+    }
+    let classes = if !task && cfg.output.per_class {
+        let w = plan.tile_writer()?;
+        let c = std::sync::Arc::new(ClassFiles::new(w.header(), w.is_laz(), out.stage())?);
+        plan.observers.push(c.clone());
+        Some(c)
+    } else {
+        None
+    };
+    Ok(Observers { sink, classes })
+}
+
+/// What [`observers`] set up.
+struct Observers {
+    sink: Option<std::sync::Arc<OverviewSink>>,
+    classes: Option<std::sync::Arc<ClassFiles>>,
 }

@@ -45,8 +45,8 @@ pub struct RunPlan {
     pub laz: bool,
     /// Where spill files go (inside the run's work directory).
     pub spill_dir: PathBuf,
-    /// Sees every record block the tile writer writes (the report's raster), if set.
-    pub observer: Option<std::sync::Arc<dyn crate::io::output::WrittenRecords>>,
+    /// See every record block the tile writer writes (the report's raster, per-class files).
+    pub observers: Vec<std::sync::Arc<dyn crate::io::output::WrittenRecords>>,
 }
 
 /// What the workers and the writer need to stitch segments across tiles.
@@ -141,7 +141,7 @@ impl RunPlan {
             segment_ids: segmenter.map(|_| id_type),
             laz: cfg.output.format == "laz",
             spill_dir: work_base.join("spill"),
-            observer: None,
+            observers: Vec::new(),
             set,
             skipped_inputs,
             keep_going: cfg.pipeline.keep_going,
@@ -156,7 +156,7 @@ impl RunPlan {
             self.laz,
             self.segment_ids,
         )?;
-        if let Some(o) = &self.observer {
+        for o in &self.observers {
             w.observe(o.clone());
         }
         Ok(w)

@@ -65,8 +65,20 @@ pub fn stitch_plan_dir(dir: &Path, overwrite: bool) -> Result<Summary> {
         .report
         .then(|| std::sync::Arc::new(OverviewSink::new(run.input_bounds())));
     if let Some(s) = &sink {
-        run.observer = Some(s.clone());
+        run.observers.push(s.clone());
     }
+    let classes = if cfg.output.per_class {
+        let w = run.tile_writer()?;
+        let c = std::sync::Arc::new(crate::io::perclass::ClassFiles::new(
+            w.header(),
+            w.is_laz(),
+            out.stage(),
+        )?);
+        run.observers.push(c.clone());
+        Some(c)
+    } else {
+        None
+    };
     if run.set.total_points != plan.points {
         return Err(Error::Config(format!(
             "{}: the inputs now announce {} points, the plan {}; plan again",
@@ -147,6 +159,9 @@ pub fn stitch_plan_dir(dir: &Path, overwrite: bool) -> Result<Summary> {
             "the plan's inputs announce {} points; the tasks wrote {} and failed {}",
             plan.points, summary.points_out, summary.points_failed
         )));
+    }
+    if let Some(c) = &classes {
+        super::finish_class_files(c, &mut out, &mut summary)?;
     }
     if let Some(s) = &sink {
         super::write_report(&mut out, &mut summary, Some(s))?;

@@ -99,6 +99,9 @@ pub struct Summary {
     /// Tiles this run processed (all of them, unless it resumed an interrupted run).
     #[serde(default)]
     pub tiles_recomputed: usize,
+    /// Per-class files written (`output.per_class`).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub class_files: Vec<crate::io::perclass::ClassFile>,
     /// The cells of report.html's rasters (`tessera report` draws the same).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub report_raster: Option<overview::Geometry>,

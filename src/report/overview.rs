@@ -4,6 +4,7 @@
 
 use crate::error::{Error, Result};
 use crate::io::output::{RecordFields, WrittenRecords, TRUTH_FIELD};
+pub use crate::model::class_name;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
@@ -14,8 +15,6 @@ pub const MAX_PIXELS: usize = 1 << 21;
 pub const MAX_SIDE: usize = 2048;
 /// Finest cell size, metres (or the unit of the tiles' coordinates).
 pub const MIN_CELL: f64 = 0.05;
-/// Records decoded at a time.
-const CHUNK: u64 = 65_536;
 
 /// One output tile as the report sees it: file and header bounds.
 #[derive(Debug, Clone)]
@@ -463,7 +462,7 @@ impl Patch {
         let lo = g.cell_of(t.bounds[0], t.bounds[1]);
         let hi = g.cell_of(t.bounds[2], t.bounds[3]);
         let mut p = Patch::empty(g, lo, hi, &f);
-        for_each_record(&t.path, &h, &f, &mut |rec| p.add(g, &f, rec))?;
+        crate::io::output::for_each_record(&t.path, &h, &f, true, &mut |rec| p.add(g, &f, rec))?;
         Ok(p)
     }
 
@@ -519,65 +518,6 @@ impl Patch {
     }
 }
 
-/// Calls `f` on every raw record of the file. LAZ in point formats 6–10 is decoded
-/// selectively: only the layers the report reads (x, y, z, classification, extra bytes),
-/// which roughly halves the decoding time.
-fn for_each_record(
-    path: &Path,
-    h: &las::Header,
-    layout: &RecordFields,
-    f: &mut dyn FnMut(&[u8]),
-) -> Result<()> {
-    let fmt = h.point_format();
-    let laszip = h
-        .all_vlrs()
-        .find(|v| v.user_id == "laszip encoded" && v.record_id == 22204);
-    if let (true, true, Some(vlr)) = (fmt.is_compressed, fmt.is_extended, laszip) {
-        use laz::DecompressionSelection as S;
-        use std::io::{Seek, SeekFrom};
-        let lazerr = |e: laz::LasZipError| Error::bad_input(path, format!("LAZ: {e}"));
-        let vlr = laz::LazVlr::from_buffer(&vlr.data).map_err(lazerr)?;
-        let file = crate::io::files::open_regular(path)?;
-        let mut src = std::io::BufReader::new(file);
-        let offset = {
-            let mut b = [0u8; 100];
-            use std::io::Read;
-            src.read_exact(&mut b).map_err(|e| Error::io(path, e))?;
-            u64::from(u32::from_le_bytes([b[96], b[97], b[98], b[99]]))
-        };
-        src.seek(SeekFrom::Start(offset))
-            .map_err(|e| Error::io(path, e))?;
-        let mut sel = S::Z | S::CLASSIFICATION;
-        if layout.segment.is_some() || layout.truth.is_some() {
-            sel |= S::ALL_EXTRA_BYTES;
-        }
-        let mut d = laz::LasZipDecompressor::selective(src, vlr, S(sel)).map_err(lazerr)?;
-        let mut left = h.number_of_points();
-        let mut buf = vec![0u8; CHUNK as usize * layout.record_len];
-        while left > 0 {
-            let n = left.min(CHUNK) as usize;
-            let chunk = &mut buf[..n * layout.record_len];
-            d.decompress_many(chunk).map_err(|e| Error::io(path, e))?;
-            chunk.chunks_exact(layout.record_len).for_each(&mut *f);
-            left -= n as u64;
-        }
-        return Ok(());
-    }
-    let mut r = las::Reader::from_path(path).map_err(|e| Error::las(path, e))?;
-    let mut data = las::PointDataBuilder::new().for_header(h).build();
-    loop {
-        let n = r
-            .fill_points(CHUNK, &mut data)
-            .map_err(|e| Error::las(path, e))?;
-        if n == 0 {
-            return Ok(());
-        }
-        data.raw_bytes()
-            .chunks_exact(layout.record_len)
-            .for_each(&mut *f);
-    }
-}
-
 /// Draws the records a run writes, tile by tile as they are written (no second decoding):
 /// the run's [`WrittenRecords`] observer.
 pub struct OverviewSink {
@@ -617,13 +557,14 @@ impl OverviewSink {
 }
 
 impl WrittenRecords for OverviewSink {
-    fn written(&self, tile: &str, fields: &RecordFields, records: &[u8]) {
+    fn written(&self, tile: &str, fields: &RecordFields, records: &[u8]) -> Result<()> {
         let patch = Patch::of_records(&self.geometry, fields, records);
         let mut st = self.state.lock().unwrap_or_else(|e| e.into_inner());
         st.0.merge(patch);
         if !st.1.contains(tile) {
             st.1.insert(tile.to_string());
         }
+        Ok(())
     }
 }
 
@@ -646,40 +587,6 @@ pub fn png(rgb: &[u8], width: usize, height: usize) -> Result<Vec<u8>> {
     w.write_image_data(rgb).map_err(err)?;
     w.finish().map_err(err)?;
     Ok(out)
-}
-
-/// Name of an ASPRS LAS 1.4 class code, or of tessera's street-level codes (64–71).
-pub fn class_name(code: u8) -> &'static str {
-    match code {
-        0 => "created, never classified",
-        1 => "unclassified",
-        2 => "ground",
-        3 => "low vegetation",
-        4 => "medium vegetation",
-        5 => "high vegetation",
-        6 => "building",
-        7 => "low point (noise)",
-        8 => "reserved / model key",
-        9 => "water",
-        10 => "rail",
-        11 => "road surface",
-        12 => "reserved / overlap",
-        13 => "wire guard",
-        14 => "wire conductor",
-        15 => "transmission tower",
-        16 => "wire connector",
-        17 => "bridge deck",
-        18 => "high noise",
-        64 => "cycle path",
-        65 => "footpath",
-        66 => "kerb",
-        67 => "grass / terrain",
-        68 => "street furniture",
-        69 => "pole",
-        70 => "vehicle",
-        71 => "lane marking",
-        _ => "user class",
-    }
 }
 
 /// Display colour of a class code.
