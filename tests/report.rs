@@ -109,6 +109,7 @@ fn demo_report_is_self_contained_and_renders_in_chromium() {
         "overview-height",
         "overview-errors",
         "confusion",
+        "memory",
     ] {
         assert!(
             html.contains(&format!("id=\"{id}\"")),
@@ -136,7 +137,7 @@ fn demo_report_is_self_contained_and_renders_in_chromium() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let again = std::fs::read_to_string(&report).unwrap();
     assert_eq!(pictures(&html), pictures(&again));
-    assert_eq!(pictures(&html).len(), 4);
+    assert_eq!(pictures(&html).len(), 5, "4 rasters and the memory chart");
 
     let Some(chrome) = chromium() else {
         assert!(
@@ -243,7 +244,7 @@ fn report_command_rebuilds_the_page_and_overwrite_still_replaces_it() {
     let second = std::fs::read_to_string(&report).unwrap();
     // The same pictures and legend (the figures from summary.json may have moved: the
     // summary now also holds the report's own time).
-    assert_eq!(pictures(&first).len(), 3);
+    assert_eq!(pictures(&first).len(), 4, "3 rasters and the memory chart");
     assert_eq!(pictures(&first), pictures(&second));
     assert_eq!(legend(&first), legend(&second));
 

@@ -101,6 +101,7 @@ fn run_scoped(
     scope: Option<&task::TaskScope>,
 ) -> Result<Summary> {
     let t0 = Instant::now();
+    let sampler = crate::report::MemorySampler::start();
     // The output directory is taken first: a second run into it refuses before any work, and
     // an earlier run's outputs are replaced only with `output.overwrite`.
     let mut out = OutputDir::open(out_dir, cfg.output.overwrite || cfg.output.restart)?;
@@ -216,6 +217,7 @@ fn run_scoped(
     if let Some(c) = &classes {
         finish_class_files(c, &mut out, &mut summary)?;
     }
+    summary.memory_timeline = sampler.finish();
     if let Some(s) = &sink {
         write_report(&mut out, &mut summary, Some(s))?;
     }

@@ -48,10 +48,12 @@ pub fn build(
         .map(|a| {
             a.iter()
                 .filter_map(|t| {
-                    Some((
-                        t.get("name")?.as_str()?.to_string(),
-                        t.get("file")?.as_str()?.to_string(),
-                    ))
+                    let file = t.get("file")?.as_str()?;
+                    // A summary is input: only plain file names inside the directory.
+                    if file.contains('/') || file.starts_with('.') || file.is_empty() {
+                        return None;
+                    }
+                    Some((t.get("name")?.as_str()?.to_string(), file.to_string()))
                 })
                 .collect()
         })
@@ -276,8 +278,9 @@ fn maps(h: &mut String, s: &Value, ov: &Overview, tiles: &[TileExtent]) -> Resul
         "overview-height",
         &format!(
             "Height of the highest point, {:.1} (blue) to {:.1} (yellow), hillshaded",
-            lo + 0.0,
-            hi + 0.0
+            // Rounded first, so a height of -0.04 does not print as "-0.0".
+            (lo * 10.0).round() / 10.0 + 0.0,
+            (hi * 10.0).round() / 10.0 + 0.0
         ),
         &png(ov.height_rgb())?,
         "",
@@ -425,6 +428,7 @@ fn memory(h: &mut String, s: &Value) {
         if pct > 100.0 { " over" } else { "" },
         pct.min(100.0)
     );
+    memory_chart(h, s, budget);
     if let Some(b) = s.get("budget").and_then(Value::as_object) {
         h.push_str("<table class=\"kv\">");
         for key in [
@@ -497,4 +501,45 @@ fn confusion(h: &mut String, ov: &Overview) {
         );
     }
     h.push_str("</table>");
+}
+
+/// Resident memory over the run (summary `memory_timeline`) against the budget, as an SVG
+/// line chart.
+fn memory_chart(h: &mut String, s: &Value, budget: f64) {
+    let pts: Vec<(f64, f64)> = s
+        .get("memory_timeline")
+        .and_then(Value::as_array)
+        .map(|a| {
+            a.iter()
+                .filter_map(|p| Some((p.get(0)?.as_f64()?, p.get(1)?.as_f64()?)))
+                .filter(|p| p.0.is_finite() && p.1.is_finite())
+                .collect()
+        })
+        .unwrap_or_default();
+    if pts.len() < 2 {
+        return;
+    }
+    let (w, ht, pad) = (800.0, 220.0, 40.0);
+    let tmax = pts.iter().map(|p| p.0).fold(1e-9, f64::max);
+    let ymax = pts.iter().map(|p| p.1).fold(budget, f64::max).max(1.0) * 1.05;
+    let x = |t: f64| pad + (w - 2.0 * pad) * t / tmax;
+    let y = |m: f64| ht - pad + -(ht - 2.0 * pad) * m / ymax;
+    let line: Vec<String> = pts
+        .iter()
+        .map(|p| format!("{:.1},{:.1}", x(p.0), y(p.1)))
+        .collect();
+    let _ = write!(
+        h,
+        "<figure id=\"memory\"><figcaption>Resident memory (MiB) over the run's {tmax:.0} s; dashed: the {budget:.0} MiB budget</figcaption><svg width=\"{w}\" height=\"{ht}\" viewBox=\"0 0 {w} {ht}\" style=\"border:1px solid #ccc\">\
+<line x1=\"{pad}\" y1=\"{b:.1}\" x2=\"{r}\" y2=\"{b:.1}\" stroke=\"#d44\" stroke-dasharray=\"6 4\"/>\
+<polyline fill=\"none\" stroke=\"#2a6\" stroke-width=\"2\" points=\"{}\"/>\
+<line x1=\"{pad}\" y1=\"{base}\" x2=\"{r}\" y2=\"{base}\" stroke=\"#888\"/>\
+<text x=\"{pad}\" y=\"{lbl}\" font-size=\"11\">0 s</text><text x=\"{r}\" y=\"{lbl}\" font-size=\"11\" text-anchor=\"end\">{tmax:.0} s</text>\
+<text x=\"4\" y=\"{b:.1}\" font-size=\"11\">{budget:.0}</text></svg></figure>",
+        line.join(" "),
+        b = y(budget),
+        r = w - pad,
+        base = ht - pad,
+        lbl = ht - pad + 14.0,
+    );
 }

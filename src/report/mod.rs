@@ -15,6 +15,67 @@ pub fn peak_rss_mb() -> Option<f64> {
     Some(kb / 1024.0)
 }
 
+/// Resident memory sampled over a run (report.html draws it against the budget): every
+/// 0.25 s at first; when 512 samples are taken, every other one is dropped and the interval
+/// doubles, so a night-long run keeps at most 512.
+pub struct MemorySampler {
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    handle: Option<std::thread::JoinHandle<Vec<[f64; 2]>>>,
+}
+
+impl MemorySampler {
+    /// Starts sampling (VmRSS of this process, MiB, against seconds since the start).
+    pub fn start() -> MemorySampler {
+        use std::sync::atomic::{AtomicBool, Ordering};
+        let stop = std::sync::Arc::new(AtomicBool::new(false));
+        let flag = stop.clone();
+        let handle = std::thread::Builder::new()
+            .name("tessera-rss".into())
+            .spawn(move || {
+                let t0 = std::time::Instant::now();
+                let mut every = std::time::Duration::from_millis(250);
+                let mut samples: Vec<[f64; 2]> = Vec::new();
+                let mut next = t0;
+                while !flag.load(Ordering::Relaxed) {
+                    if std::time::Instant::now() >= next {
+                        if let Some(mb) = rss_mb() {
+                            samples.push([t0.elapsed().as_secs_f64(), mb]);
+                        }
+                        if samples.len() >= 512 {
+                            samples = samples.into_iter().step_by(2).collect();
+                            every *= 2;
+                        }
+                        next += every;
+                    }
+                    std::thread::sleep(std::time::Duration::from_millis(50));
+                }
+                if let Some(mb) = rss_mb() {
+                    samples.push([t0.elapsed().as_secs_f64(), mb]);
+                }
+                samples
+            })
+            .ok();
+        MemorySampler { stop, handle }
+    }
+
+    /// Stops and returns the samples (seconds, MiB).
+    pub fn finish(mut self) -> Vec<[f64; 2]> {
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        self.handle
+            .take()
+            .and_then(|h| h.join().ok())
+            .unwrap_or_default()
+    }
+}
+
+/// Current resident set size (VmRSS), MiB.
+fn rss_mb() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = s.lines().find(|l| l.starts_with("VmRSS:"))?;
+    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb / 1024.0)
+}
+
 /// One written tile.
 #[derive(Debug, Clone, Serialize)]
 pub struct TileSummary {
@@ -102,6 +163,9 @@ pub struct Summary {
     /// Per-class files written (`output.per_class`).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub class_files: Vec<crate::io::perclass::ClassFile>,
+    /// Resident memory over the run: (seconds, MiB) samples.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub memory_timeline: Vec<[f64; 2]>,
     /// The cells of report.html's rasters (`tessera report` draws the same).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub report_raster: Option<overview::Geometry>,
