@@ -131,9 +131,9 @@ impl Overview {
     /// patch and one chunk of records.
     pub fn add_tiles(&mut self, tiles: &[TileExtent]) -> Result<()> {
         use rayon::prelude::*;
+        let geometry = self.geometry();
         let shared = std::sync::Mutex::new(std::mem::replace(self, Overview::placeholder()));
         let res = tiles.par_iter().try_for_each(|t| {
-            let geometry = shared.lock().map(|o| o.geometry()).unwrap_or_default();
             let patch = Patch::of_tile(&geometry, t)?;
             if let Ok(mut o) = shared.lock() {
                 o.merge(patch);
