@@ -344,14 +344,23 @@ impl Geometry {
             b = [0.0, 0.0, 1.0, 1.0];
         }
         let (w, h) = ((b[2] - b[0]).max(MIN_CELL), (b[3] - b[1]).max(MIN_CELL));
-        let cell = (w.max(h) / MAX_SIDE as f64)
+        let mut cell = (w.max(h) / MAX_SIDE as f64)
             .max((w * h / MAX_PIXELS as f64).sqrt())
             .max(MIN_CELL);
-        Geometry {
-            origin: [b[0], b[1]],
-            cell,
-            width: ((w / cell).ceil() as usize).clamp(1, MAX_SIDE),
-            height: ((h / cell).ceil() as usize).clamp(1, MAX_SIDE),
+        // Rounding the sides up can overshoot the cell budget by a row or column.
+        loop {
+            // (The tolerance keeps w / cell = 2048.000…1 at 2048.)
+            let side = |len: f64| (len / cell - 1e-9).ceil() as usize;
+            let (width, height) = (side(w), side(h));
+            if width <= MAX_SIDE && height <= MAX_SIDE && width * height <= MAX_PIXELS {
+                return Geometry {
+                    origin: [b[0], b[1]],
+                    cell,
+                    width: width.max(1),
+                    height: height.max(1),
+                };
+            }
+            cell *= 1.001;
         }
     }
 
@@ -692,7 +701,8 @@ mod tests {
         let o = Overview::new(&[extent([0.0, 0.0, 300.0, 17.0])]);
         assert_eq!(o.width, 2048);
         assert_eq!(o.index(0.0, 0.0), Some((o.height - 1) * o.width));
-        assert_eq!(o.index(299.99, 16.99), Some(o.width - 1));
+        let top = o.height as f64 * o.cell - 1e-6;
+        assert_eq!(o.index(299.99, top), Some(o.width - 1));
         assert_eq!(o.index(-1.0, 0.0), None);
     }
 
