@@ -203,28 +203,40 @@ fn demo_report_is_self_contained_and_renders_in_chromium() {
     }
 }
 
-#[test]
-fn report_command_rebuilds_the_page_and_overwrite_still_replaces_it() {
-    let d = tempfile::tempdir().unwrap();
-    let scene = d.path().join("scene");
+/// Synthesises a `length` m street into `dir/scene`; returns the scene and a runner of
+/// `tessera run SCENE --out dir/out --set SET [extra...]`.
+fn scene_and_runner(
+    dir: &Path,
+    length: &str,
+    set: &'static str,
+) -> (PathBuf, PathBuf, impl Fn(&[&str]) -> std::process::Output) {
+    let scene = dir.join("scene");
     let o = tessera()
-        .args(["-q", "synth", "--length-m", "30", "--out"])
+        .args(["-q", "synth", "--length-m", length, "--out"])
         .arg(&scene)
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let out = d.path().join("out");
-    let run = |extra: &[&str]| {
+    let out = dir.join("out");
+    let (sc, ou) = (scene.clone(), out.clone());
+    let run = move |extra: &[&str]| {
         tessera()
             .args(["-q", "run"])
-            .arg(&scene)
+            .arg(&sc)
             .arg("--out")
-            .arg(&out)
-            .args(["--set", "stages.run=[\"ground\",\"stats\"]"])
+            .arg(&ou)
+            .args(["--set", set])
             .args(extra)
             .output()
             .unwrap()
     };
+    (scene, out, run)
+}
+
+#[test]
+fn report_command_rebuilds_the_page_and_overwrite_still_replaces_it() {
+    let d = tempfile::tempdir().unwrap();
+    let (scene, out, run) = scene_and_runner(d.path(), "30", "stages.run=[\"ground\",\"stats\"]");
     let o = run(&[]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let report = out.join("report.html");
@@ -283,25 +295,7 @@ fn records_by_class(files: &[PathBuf]) -> std::collections::BTreeMap<u8, Vec<Vec
 #[test]
 fn per_class_files_hold_every_record_of_their_class() {
     let d = tempfile::tempdir().unwrap();
-    let scene = d.path().join("scene");
-    let o = tessera()
-        .args(["-q", "synth", "--length-m", "40", "--out"])
-        .arg(&scene)
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let out = d.path().join("out");
-    let run = |extra: &[&str]| {
-        tessera()
-            .args(["-q", "run"])
-            .arg(&scene)
-            .arg("--out")
-            .arg(&out)
-            .args(["--set", "output.per_class=true"])
-            .args(extra)
-            .output()
-            .unwrap()
-    };
+    let (_scene, out, run) = scene_and_runner(d.path(), "40", "output.per_class=true");
     let o = run(&[]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let all = common::tiles_in(&out);
