@@ -49,6 +49,9 @@ pub struct BudgetPlan {
     /// Reserved for the stitcher's frontier (border summaries of tiles waiting for their
     /// neighbours), bytes; 0 without stitching.
     pub stitch_bytes: u64,
+    /// Reserved for what the run's outputs hold whatever the tiles (the report's raster),
+    /// bytes; see [`BudgetPlan::reserve_outputs`].
+    pub output_bytes: u64,
 }
 
 /// A stage's working memory as the plan charges it (see [`BudgetPlan::fits`]); checked against
@@ -153,6 +156,7 @@ impl BudgetPlan {
             base_bytes_per_point,
             stages: stages.to_vec(),
             stitch_bytes: 0,
+            output_bytes: 0,
         })
     }
 
@@ -228,6 +232,27 @@ impl BudgetPlan {
             )));
         }
         self.stitch_bytes = reserve;
+        self.tile_bytes = tile_bytes;
+        self.max_tile_points = max_tile_points;
+        Ok(())
+    }
+}
+
+impl BudgetPlan {
+    /// Takes `bytes` of the tile memory for `what` (held for the whole run, whatever the
+    /// tiles: the report's raster) and shrinks each tile's share accordingly.
+    pub fn reserve_outputs(&mut self, bytes: u64, what: &str) -> Result<()> {
+        let all_tiles = self.tile_bytes * self.tiles_in_flight as u64;
+        let tile_bytes = all_tiles.saturating_sub(bytes) / self.tiles_in_flight.max(1) as u64;
+        let max_tile_points = tile_bytes / self.bytes_per_tile_point.max(1) as u64;
+        if max_tile_points < 20_000 {
+            return Err(Error::Budget(format!(
+                "memory budget {} MiB leaves room for only {max_tile_points} points per tile once {what} ({} MiB) is reserved; raise the budget or use fewer threads",
+                self.budget_bytes >> 20,
+                bytes.div_ceil(1 << 20)
+            )));
+        }
+        self.output_bytes += bytes;
         self.tile_bytes = tile_bytes;
         self.max_tile_points = max_tile_points;
         Ok(())

@@ -60,7 +60,7 @@ pub struct PipelineParams {
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct OutputParams {
-    /// "laz" or "las".
+    /// "laz", "las" or "copc".
     pub format: String,
     /// "auto" or a point format number as a string or integer.
     pub point_format: toml::Value,
@@ -353,9 +353,9 @@ impl Config {
                 self.pipeline.memory_budget_mb
             )));
         }
-        if !matches!(self.output.format.as_str(), "laz" | "las") {
+        if crate::io::output::Container::parse(&self.output.format).is_none() {
             return Err(Error::Config(format!(
-                "output.format must be \"laz\" or \"las\", got \"{}\"",
+                "output.format must be \"laz\", \"las\" or \"copc\", got \"{}\"",
                 self.output.format
             )));
         }

@@ -329,6 +329,23 @@ fn per_class_files_hold_every_record_of_their_class() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(records_by_class(&class_files) == got);
 
+    // The output directory read as input: its tiles once, not the class files again.
+    let reread = d.path().join("reread");
+    let o = tessera()
+        .args(["-q", "run"])
+        .arg(&out)
+        .arg("--out")
+        .arg(&reread)
+        .args(["--set", "stages.run=[\"stats\"]"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s2: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(reread.join("summary.json")).unwrap())
+            .unwrap();
+    let tile_points: usize = want.values().map(Vec::len).sum();
+    assert_eq!(s2["points_in"].as_u64().unwrap() as usize, tile_points);
+
     // Built from the tile files instead (reused / linked tiles): the same records.
     let rebuilt = d.path().join("rebuilt");
     let mut dir = tessera::io::workspace::OutputDir::open(&rebuilt, false).unwrap();

@@ -96,9 +96,20 @@ fn walk_inputs(
         let mut stack = vec![p.clone()];
         while let Some(dir) = stack.pop() {
             let rd = std::fs::read_dir(&dir).map_err(|e| Error::io(&dir, e))?;
+            let derived = crate::io::perclass::derived_files(&dir);
+            if !derived.is_empty() {
+                tracing::info!(
+                    "{}: its {} per-class files repeat its tiles' points; reading the tiles only",
+                    dir.display(),
+                    derived.len()
+                );
+            }
             for entry in rd {
                 let entry = entry.map_err(|e| Error::io(&dir, e))?;
                 let path = entry.path();
+                if derived.contains(entry.file_name().to_string_lossy().as_ref()) {
+                    continue;
+                }
                 let canon = match std::fs::canonicalize(&path) {
                     Ok(c) => c,
                     // A dangling symlink is not an input.

@@ -2,6 +2,7 @@
 //! and MCAP drive recordings (decoded and georeferenced into LAS parts, [`mcap`]).
 
 pub mod attributes;
+pub mod copc;
 pub mod crs;
 pub mod extra;
 pub mod files;

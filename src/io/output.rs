@@ -255,6 +255,43 @@ pub struct TileSegments<'a> {
     pub table: &'a str,
 }
 
+/// How tiles are stored.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Container {
+    /// Uncompressed LAS.
+    Las,
+    /// LAZ in fixed chunks of 50,000 points, in the tile's point order.
+    Laz,
+    /// COPC: LAZ whose chunks are octree nodes (see [`crate::io::copc`]).
+    Copc,
+}
+
+impl Container {
+    /// The `output.format` value: "las", "laz" or "copc".
+    pub fn parse(s: &str) -> Option<Container> {
+        match s {
+            "las" => Some(Container::Las),
+            "laz" => Some(Container::Laz),
+            "copc" => Some(Container::Copc),
+            _ => None,
+        }
+    }
+
+    /// File name extension (without the dot).
+    pub fn extension(self) -> &'static str {
+        match self {
+            Container::Las => "las",
+            Container::Laz => "laz",
+            Container::Copc => "copc.laz",
+        }
+    }
+
+    /// Whether points are LAZ-compressed.
+    pub fn compressed(self) -> bool {
+        self != Container::Las
+    }
+}
+
 /// Writes tiles of one run: every tile shares the template header (CRS and other VLRs,
 /// GPS time type), the run's point format and transforms.
 #[derive(Debug, Clone)]
@@ -266,7 +303,7 @@ pub struct TileWriter {
     out_layout: RecordLayout,
     segment_field: SegmentField,
     id_type: SegmentIdType,
-    extension: &'static str,
+    container: Container,
     /// Where the records written are reported.
     observers: Vec<std::sync::Arc<dyn WrittenRecords>>,
     fields: RecordFields,
@@ -280,15 +317,25 @@ impl TileWriter {
     pub fn new(
         template: &las::Header,
         layout: &RecordLayout,
-        laz: bool,
+        container: Container,
         segments: Option<SegmentIdType>,
     ) -> Result<Self> {
         let mut b = Builder::from(template.clone());
         b.version = Version::new(1, 4);
         b.point_format = layout.format;
-        b.point_format.is_compressed = laz;
+        b.point_format.is_compressed = container.compressed();
         b.transforms = layout.transforms;
         b.vlrs.retain(|v| !las::laz::is_laszip_vlr(v));
+        // A COPC input's info VLR and hierarchy describe that file's chunks, not ours: kept,
+        // they would make readers take a plain tile for a (broken) COPC file.
+        b.vlrs.retain(|v| v.user_id != crate::io::copc::USER_ID);
+        b.evlrs.retain(|v| v.user_id != crate::io::copc::USER_ID);
+        if container == Container::Copc && !matches!(layout.format.to_u8(), Ok(6..=8)) {
+            return Err(Error::Config(format!(
+                "output.format = \"copc\" holds point formats 6, 7 and 8; the run's format is {} (set output.point_format)",
+                layout.format.to_u8().unwrap_or(255)
+            )));
+        }
         b.padding.clear();
         b.vlr_padding.clear();
         b.point_padding.clear();
@@ -352,7 +399,7 @@ impl TileWriter {
             out_layout,
             segment_field,
             id_type,
-            extension: if laz { "laz" } else { "las" },
+            container,
         })
     }
 
@@ -375,9 +422,14 @@ impl TileWriter {
         &self.header
     }
 
-    /// Whether tiles are LAZ.
+    /// Whether tiles are LAZ (plain or COPC).
     pub fn is_laz(&self) -> bool {
-        self.extension == "laz"
+        self.container.compressed()
+    }
+
+    /// How tiles are stored.
+    pub fn container(&self) -> Container {
+        self.container
     }
 
     /// Type of the segment id attribute.
@@ -432,7 +484,7 @@ impl TileWriter {
         records: &mut [u8],
         segments: Option<TileSegments<'_>>,
     ) -> Result<PendingTile> {
-        let file = format!("{name}.{}", self.extension);
+        let file = format!("{name}.{}", self.container.extension());
         let path = stage.join(&file);
         let mut pending = PendingTile { files: Vec::new() };
         let ids = |i: usize| {
@@ -536,12 +588,46 @@ impl TileWriter {
             }
             Ok(id)
         };
-        let file = format!("{}.{}", d.name, self.extension);
+        let file = format!("{}.{}", d.name, self.container.extension());
         let tmp = dir.join(&file);
         let mut pending = PendingTile {
             files: vec![(tmp.clone(), file)],
         };
         let res = (|| -> Result<()> {
+            if self.container == Container::Copc {
+                // The octree needs every record at once: mapped, not read (the spill file is
+                // the tile's records; the page cache holds them, not the heap).
+                let file = File::open(&d.raw).map_err(|e| Error::io(&d.raw, e))?;
+                let len = file.metadata().map_err(|e| Error::io(&d.raw, e))?.len();
+                if len != (d.points * rl) as u64 {
+                    return Err(Error::Internal(format!(
+                        "{}: {len} bytes for {} records of {rl}",
+                        d.raw.display(),
+                        d.points
+                    )));
+                }
+                // The spill file is private to this run: nothing changes it while mapped.
+                let map = if len == 0 {
+                    None
+                } else {
+                    Some(crate::sys::map_readonly(&file).map_err(|e| Error::io(&d.raw, e))?)
+                };
+                let records: &[u8] = map.as_deref().unwrap_or(&[]);
+                let edit = |rec: &mut [u8]| -> Result<()> {
+                    let mut raw = [0u8; 8];
+                    raw[..w].copy_from_slice(&rec[off..off + w]);
+                    let id = global(u64::from_le_bytes(raw))?;
+                    rec[off..off + w].copy_from_slice(&id.to_le_bytes()[..w]);
+                    Ok(())
+                };
+                let mut observe = |b: &[u8]| self.tell(&d.name, b);
+                crate::io::copc::write(&tmp, &self.header, records, &edit, &mut observe)?;
+                if let Some(m) = &map {
+                    // Touched file pages count in the resident set until reclaimed.
+                    crate::sys::release_mapped(m, 0, m.len());
+                }
+                return self.write_table(dir, d, &global, &mut pending);
+            }
             let file = File::open(&d.raw).map_err(|e| Error::io(&d.raw, e))?;
             let mut src = std::io::BufReader::with_capacity(1 << 20, file);
             let mut writer = self.open_writer(&tmp)?;
@@ -557,9 +643,7 @@ impl TileWriter {
                     let id = global(u64::from_le_bytes(raw))?;
                     rec[off..off + w].copy_from_slice(&id.to_le_bytes()[..w]);
                 }
-                for o in &self.observers {
-                    o.written(&d.name, &self.fields, &buf)?;
-                }
+                self.tell(&d.name, &buf)?;
                 let data = PointDataBuilder::new()
                     .with_format(self.out_layout.format)
                     .with_transforms(self.out_layout.transforms)
@@ -569,29 +653,48 @@ impl TileWriter {
                 left -= n;
             }
             Self::close_writer(writer, &tmp)?;
-            let table = std::fs::read_to_string(&d.table).map_err(|e| Error::io(&d.table, e))?;
-            let mut out = String::with_capacity(table.len() + table.len() / 4);
-            for (i, line) in table.lines().enumerate() {
-                let (first, rest) = line.split_once('\t').unwrap_or((line, ""));
-                if i == 0 {
-                    out.push_str(&format!("{first}\tlocal_id\t{rest}\n"));
-                    continue;
-                }
-                let local: u64 = first.parse().map_err(|_| {
-                    Error::Internal(format!("tile {}: bad segment table row '{line}'", d.name))
-                })?;
-                out.push_str(&format!("{}\t{local}\t{rest}\n", global(local)?));
-            }
-            let tfile = format!("{}.segments.tsv", d.name);
-            let ttmp = dir.join(&tfile);
-            pending.files.push((ttmp.clone(), tfile));
-            std::fs::write(&ttmp, out).map_err(|e| Error::io(&ttmp, e))
+            self.write_table(dir, d, &global, &mut pending)
         })();
         if let Err(e) = res {
             pending.abandon();
             return Err(e);
         }
         Ok(pending)
+    }
+
+    /// Reports records written to the observers.
+    fn tell(&self, name: &str, records: &[u8]) -> Result<()> {
+        for o in &self.observers {
+            o.written(name, &self.fields, records)?;
+        }
+        Ok(())
+    }
+
+    /// The segment table of a deferred tile with global ids first, the local id second.
+    fn write_table(
+        &self,
+        dir: &Path,
+        d: &DeferredTile,
+        global: &dyn Fn(u64) -> Result<u64>,
+        pending: &mut PendingTile,
+    ) -> Result<()> {
+        let table = std::fs::read_to_string(&d.table).map_err(|e| Error::io(&d.table, e))?;
+        let mut out = String::with_capacity(table.len() + table.len() / 4);
+        for (i, line) in table.lines().enumerate() {
+            let (first, rest) = line.split_once('\t').unwrap_or((line, ""));
+            if i == 0 {
+                out.push_str(&format!("{first}\tlocal_id\t{rest}\n"));
+                continue;
+            }
+            let local: u64 = first.parse().map_err(|_| {
+                Error::Internal(format!("tile {}: bad segment table row '{line}'", d.name))
+            })?;
+            out.push_str(&format!("{}\t{local}\t{rest}\n", global(local)?));
+        }
+        let tfile = format!("{}.segments.tsv", d.name);
+        let ttmp = dir.join(&tfile);
+        pending.files.push((ttmp.clone(), tfile));
+        std::fs::write(&ttmp, out).map_err(|e| Error::io(&ttmp, e))
     }
 
     fn open_writer(&self, tmp: &Path) -> Result<LasFile> {
@@ -609,6 +712,10 @@ impl TileWriter {
     //
     // Written in blocks through one reused slab so the caller keeps (and reuses) its buffer.
     fn write_to(&self, tmp: &Path, name: &str, records: &[u8]) -> Result<()> {
+        if self.container == Container::Copc {
+            let mut observe = |b: &[u8]| self.tell(name, b);
+            return crate::io::copc::write(tmp, &self.header, records, &|_| Ok(()), &mut observe);
+        }
         const BLOCK: usize = 64 * 1024;
         let rl = self.out_layout.record_len;
         let mut writer = self.open_writer(tmp)?;
@@ -619,9 +726,7 @@ impl TileWriter {
         for block in records.chunks(BLOCK * rl) {
             slab.resize_for(block.len() / rl).copy_from_slice(block);
             writer.write_points(&slab)?;
-            for o in &self.observers {
-                o.written(name, &self.fields, block)?;
-            }
+            self.tell(name, block)?;
         }
         Self::close_writer(writer, tmp)
     }

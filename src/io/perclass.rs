@@ -48,6 +48,28 @@ impl std::fmt::Debug for ClassFiles {
     }
 }
 
+/// Names of the per-class files a tessera output directory holds (its summary.json
+/// `class_files`): derived from its tiles, so a walk reading the directory as input skips
+/// them rather than read every point twice. Empty when `dir` is not an output directory.
+pub fn derived_files(dir: &Path) -> std::collections::HashSet<String> {
+    let mut names = std::collections::HashSet::new();
+    if !crate::io::workspace::is_output_dir(dir) {
+        return names;
+    }
+    let Ok(text) = std::fs::read_to_string(dir.join("summary.json")) else {
+        return names;
+    };
+    let Ok(v) = serde_json::from_str::<serde_json::Value>(&text) else {
+        return names;
+    };
+    for f in v["class_files"].as_array().into_iter().flatten() {
+        if let Some(name) = f["file"].as_str() {
+            names.insert(name.to_string());
+        }
+    }
+    names
+}
+
 /// File name of class `code`: `class_011_road_surface.laz`.
 pub fn file_name(code: u8, extension: &str) -> String {
     let name: String = crate::model::class_name(code)

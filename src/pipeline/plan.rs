@@ -13,7 +13,7 @@ use crate::budget::{BudgetPlan, StageMemory};
 use crate::config::Config;
 use crate::error::{Error, Result};
 use crate::io::input::{scan_inputs_skipping, SkippedInput};
-use crate::io::output::SegmentIdType;
+use crate::io::output::{Container, SegmentIdType};
 use crate::io::{scan_inputs, InputSet, TileWriter};
 use crate::model::stage_context_m;
 use crate::stages::{Attribute, Stage};
@@ -41,8 +41,8 @@ pub struct RunPlan {
     pub min_tile_size_m: f64,
     /// Whether a stage writes segment ids, and their width in the output.
     pub segment_ids: Option<SegmentIdType>,
-    /// LAZ (true) or LAS output.
-    pub laz: bool,
+    /// How tiles are stored.
+    pub container: Container,
     /// Where spill files go (inside the run's work directory).
     pub spill_dir: PathBuf,
     /// See every record block the tile writer writes (the report's raster, per-class files).
@@ -109,6 +109,11 @@ impl RunPlan {
             &stage_mem,
             workers,
         )?;
+        if cfg.output.report {
+            // The report's raster lives for the whole run (drawn as tiles are written).
+            let g = crate::report::overview::Geometry::for_bounds(input_bounds(&set));
+            budget.reserve_outputs(g.bytes(), "the report's raster (output.report = true)")?;
+        }
         if stitching {
             budget.reserve_stitch()?;
         }
@@ -139,7 +144,7 @@ impl RunPlan {
             far_thin: far_thin(cfg, stages),
             min_tile_size_m: cfg.tiling.min_tile_size_m,
             segment_ids: segmenter.map(|_| id_type),
-            laz: cfg.output.format == "laz",
+            container: Container::parse(&cfg.output.format).unwrap_or(Container::Laz),
             spill_dir: work_base.join("spill"),
             observers: Vec::new(),
             set,
@@ -153,7 +158,7 @@ impl RunPlan {
         let mut w = TileWriter::new(
             &self.set.template,
             &self.set.layout,
-            self.laz,
+            self.container,
             self.segment_ids,
         )?;
         for o in &self.observers {
@@ -164,19 +169,7 @@ impl RunPlan {
 
     /// The region the inputs cover: [min x, min y, max x, max y] of their headers.
     pub fn input_bounds(&self) -> [f64; 4] {
-        let mut b = [
-            f64::INFINITY,
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-            f64::NEG_INFINITY,
-        ];
-        for f in self.set.files.iter().filter(|f| f.points > 0) {
-            b[0] = b[0].min(f.bounds.x0);
-            b[1] = b[1].min(f.bounds.y0);
-            b[2] = b[2].max(f.bounds.x1);
-            b[3] = b[3].max(f.bounds.y1);
-        }
-        b
+        input_bounds(&self.set)
     }
 
     /// How a worker splits a job too big for its share of the budget.
@@ -191,9 +184,27 @@ impl RunPlan {
     }
 }
 
+/// The region `set` covers: [min x, min y, max x, max y] of its files' headers.
+fn input_bounds(set: &InputSet) -> [f64; 4] {
+    let mut b = [
+        f64::INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NEG_INFINITY,
+    ];
+    for f in set.files.iter().filter(|f| f.points > 0) {
+        b[0] = b[0].min(f.bounds.x0);
+        b[1] = b[1].min(f.bounds.y0);
+        b[2] = b[2].max(f.bounds.x1);
+        b[3] = b[3].max(f.bounds.y1);
+    }
+    b
+}
+
 /// Scans the inputs in the output point format: the configured one, else the inputs' own,
-/// upgraded to a LAS 1.4 format when a stage writes class codes legacy formats cannot hold.
-/// With `pipeline.keep_going`, unreadable inputs are left out and returned.
+/// upgraded to a LAS 1.4 format when a stage writes class codes legacy formats cannot hold
+/// or the output is COPC (formats 6, 7, 8 only). With `pipeline.keep_going`, unreadable
+/// inputs are left out and returned.
 fn scan_for_stages(
     cfg: &Config,
     stages: &[Box<dyn Stage>],
@@ -202,20 +213,32 @@ fn scan_for_stages(
     let requested = cfg.output_point_format()?;
     let (set, skipped) = scan_inputs_skipping(inputs, requested, cfg.pipeline.keep_going)?;
     let max_code = stages.iter().map(|s| s.max_class_code()).max().unwrap_or(0);
-    if requested.is_some() || max_code <= 31 || set.layout.format.is_extended {
+    let copc = Container::parse(&cfg.output.format) == Some(Container::Copc);
+    let f = &set.layout.format;
+    if copc && f.has_waveform {
+        return Err(Error::Config(format!(
+            "output.format = \"copc\" holds point formats 6, 7 and 8; the inputs carry waveform packets (format {}): write \"laz\" instead",
+            f.to_u8().unwrap_or(255)
+        )));
+    }
+    if requested.is_some() || (max_code <= 31 && !copc) || f.is_extended {
         return Ok((set, skipped));
     }
     // Legacy formats hold class codes up to 31; write the LAS 1.4 format with the same
     // attributes (0, 1 → 6; 2, 3 → 7; 4 → 9; 5 → 10) rather than fail or truncate codes.
-    let f = &set.layout.format;
     let up = match (f.has_color, f.has_waveform) {
         (false, false) => 6,
         (true, false) => 7,
         (false, true) => 9,
         (true, true) => 10,
     };
+    let why = if copc {
+        "COPC output".to_string()
+    } else {
+        format!("stages write class codes up to {max_code}")
+    };
     tracing::info!(
-        "stages write class codes up to {max_code}: output point format {} -> {up}",
+        "{why}: output point format {} -> {up}",
         f.to_u8().unwrap_or(255)
     );
     // The second scan reads only the inputs the first one kept.

@@ -438,6 +438,7 @@ fn memory(h: &mut String, s: &Value) {
             "bytes_per_tile_point",
             "tile_bytes",
             "stitch_bytes",
+            "output_bytes",
             "spill_bytes",
         ] {
             if let Some(v) = b.get(key) {

@@ -364,6 +364,12 @@ impl Geometry {
         }
     }
 
+    /// Memory the raster takes: per cell the top height (f32), class (u8), segment (u32),
+    /// points and wrong points (u16 each).
+    pub fn bytes(&self) -> u64 {
+        (self.width * self.height) as u64 * 13
+    }
+
     /// Whether a raster of this size is one the report would make (a summary is input).
     pub fn is_sane(&self) -> bool {
         self.cell.is_finite()
