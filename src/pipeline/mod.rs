@@ -442,8 +442,10 @@ pub(crate) fn finish_class_files(
 /// The report's rasters are drawn from the records as the tiles are written. (A task's tiles
 /// are not the region's: `tessera stitch` writes the region's report and class files.)
 fn observers(plan: &mut RunPlan, cfg: &Config, task: bool, out: &OutputDir) -> Result<Observers> {
-    let sink = (!task && cfg.output.report)
-        .then(|| std::sync::Arc::new(OverviewSink::new(plan.input_bounds())));
+    let sink = plan
+        .report_raster
+        .filter(|_| !task && cfg.output.report)
+        .map(|g| std::sync::Arc::new(OverviewSink::new(g)));
     if let Some(s) = &sink {
         plan.observers.push(s.clone());
     }

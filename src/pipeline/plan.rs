@@ -45,6 +45,8 @@ pub struct RunPlan {
     pub container: Container,
     /// Where spill files go (inside the run's work directory).
     pub spill_dir: PathBuf,
+    /// The report's raster (reserved in the budget), when the run draws a report.
+    pub report_raster: Option<crate::report::overview::Geometry>,
     /// See every record block the tile writer writes (the report's raster, per-class files).
     pub observers: Vec<std::sync::Arc<dyn crate::io::output::WrittenRecords>>,
 }
@@ -109,11 +111,20 @@ impl RunPlan {
             &stage_mem,
             workers,
         )?;
-        if cfg.output.report {
-            // The report's raster lives for the whole run (drawn as tiles are written).
-            let g = crate::report::overview::Geometry::for_bounds(input_bounds(&set));
+        let report_raster = if cfg.output.report {
+            // The report's raster lives for the whole run (drawn as tiles are written): at
+            // most 1/8 of the tile memory, so a small budget gets coarser cells, not
+            // smaller tiles.
+            let share = budget.tile_bytes * budget.tiles_in_flight as u64 / 8;
+            let g = crate::report::overview::Geometry::for_bounds_within(
+                input_bounds(&set),
+                usize::try_from(share / 13).unwrap_or(usize::MAX),
+            );
             budget.reserve_outputs(g.bytes(), "the report's raster (output.report = true)")?;
-        }
+            Some(g)
+        } else {
+            None
+        };
         if stitching {
             budget.reserve_stitch()?;
         }
@@ -147,6 +158,7 @@ impl RunPlan {
             container: Container::parse(&cfg.output.format).unwrap_or(Container::Laz),
             spill_dir: work_base.join("spill"),
             observers: Vec::new(),
+            report_raster,
             set,
             skipped_inputs,
             keep_going: cfg.pipeline.keep_going,
@@ -165,11 +177,6 @@ impl RunPlan {
             w.observe(o.clone());
         }
         Ok(w)
-    }
-
-    /// The region the inputs cover: [min x, min y, max x, max y] of their headers.
-    pub fn input_bounds(&self) -> [f64; 4] {
-        input_bounds(&self.set)
     }
 
     /// How a worker splits a job too big for its share of the budget.

@@ -60,10 +60,10 @@ pub fn stitch_plan_dir(dir: &Path, overwrite: bool) -> Result<Summary> {
     let mut out = OutputDir::open(dir, overwrite)?;
     let work = out.stage().to_path_buf();
     let mut run = RunPlan::resolve(&cfg, &stages, &plan.inputs, &work)?;
-    let sink = cfg
-        .output
-        .report
-        .then(|| std::sync::Arc::new(OverviewSink::new(run.input_bounds())));
+    let sink = run
+        .report_raster
+        .filter(|_| cfg.output.report)
+        .map(|g| std::sync::Arc::new(OverviewSink::new(g)));
     if let Some(s) = &sink {
         run.observers.push(s.clone());
     }

@@ -339,20 +339,27 @@ pub struct Geometry {
 impl Geometry {
     /// The raster of a region [min x, min y, max x, max y]: cells of at least [`MIN_CELL`],
     /// at most [`MAX_SIDE`] per side and [`MAX_PIXELS`] in all.
-    pub fn for_bounds(mut b: [f64; 4]) -> Geometry {
+    pub fn for_bounds(b: [f64; 4]) -> Geometry {
+        Self::for_bounds_within(b, MAX_PIXELS)
+    }
+
+    /// [`Geometry::for_bounds`] with at most `max_cells` cells (at least 64 × 64): coarser
+    /// cells under a small memory budget.
+    pub fn for_bounds_within(mut b: [f64; 4], max_cells: usize) -> Geometry {
+        let max_cells = max_cells.clamp(64 * 64, MAX_PIXELS);
         if !b.iter().all(|v| v.is_finite()) || b[2] < b[0] || b[3] < b[1] {
             b = [0.0, 0.0, 1.0, 1.0];
         }
         let (w, h) = ((b[2] - b[0]).max(MIN_CELL), (b[3] - b[1]).max(MIN_CELL));
         let mut cell = (w.max(h) / MAX_SIDE as f64)
-            .max((w * h / MAX_PIXELS as f64).sqrt())
+            .max((w * h / max_cells as f64).sqrt())
             .max(MIN_CELL);
         // Rounding the sides up can overshoot the cell budget by a row or column.
         loop {
             // (The tolerance keeps w / cell = 2048.000…1 at 2048.)
             let side = |len: f64| (len / cell - 1e-9).ceil() as usize;
             let (width, height) = (side(w), side(h));
-            if width <= MAX_SIDE && height <= MAX_SIDE && width * height <= MAX_PIXELS {
+            if width <= MAX_SIDE && height <= MAX_SIDE && width * height <= max_cells {
                 return Geometry {
                     origin: [b[0], b[1]],
                     cell,
@@ -549,9 +556,8 @@ impl std::fmt::Debug for OverviewSink {
 }
 
 impl OverviewSink {
-    /// A sink for a region [min x, min y, max x, max y].
-    pub fn new(bounds: [f64; 4]) -> OverviewSink {
-        let geometry = Geometry::for_bounds(bounds);
+    /// A sink drawing into a raster of `geometry`.
+    pub fn new(geometry: Geometry) -> OverviewSink {
         OverviewSink {
             geometry,
             state: std::sync::Mutex::new((
@@ -703,6 +709,15 @@ mod tests {
             // The extent fits.
             assert!(o.width as f64 * o.cell >= b[2] - b[0] - 1e-9);
             assert!(o.height as f64 * o.cell >= b[3] - b[1] - 1e-9);
+        }
+        // Under a small budget: at most the cells it allows, the extent still covered.
+        for cells in [1usize, 10_000, 200_000] {
+            let b = [0.0, 0.0, 100_000.0, 30_000.0];
+            let g = Geometry::for_bounds_within(b, cells);
+            assert!(g.width * g.height <= cells.max(64 * 64), "{cells}: {g:?}");
+            assert!(g.width as f64 * g.cell >= b[2] - b[0] - 1e-9);
+            assert!(g.height as f64 * g.cell >= b[3] - b[1] - 1e-9);
+            assert_eq!(g.bytes(), 13 * (g.width * g.height) as u64);
         }
         let o = Overview::new(&[extent([0.0, 0.0, 300.0, 17.0])]);
         assert_eq!(o.width, 2048);
