@@ -331,6 +331,11 @@ pub enum EvalCommand {
         /// Score only reference points with x0 <= x < x1 (e.g. away from training samples).
         #[arg(long, value_name = "X0,X1")]
         x_range: Option<XRange>,
+        /// Leave out reference points inside the polygons of this GeoJSON file (Polygon /
+        /// MultiPolygon, in the data's CRS; repeatable), e.g. a block the reference left
+        /// unclassified.
+        #[arg(long, value_name = "FILE.geojson")]
+        exclude: Vec<PathBuf>,
         /// Coordinate precision for matching points, metres.
         #[arg(long, default_value_t = 0.001)]
         match_precision_m: f64,

@@ -1,10 +1,11 @@
 //! Labelling on real airborne tiles (issue 5): building F1 against the producers' classes.
 //! AHN (Amsterdam, no colour) is the gate: building F1 ≥ 0.85 on both tiles. The IGN LiDAR HD
-//! crop is reported; its reference leaves a ~35 × 25 m block unclassified (class 1, even the
-//! ground), with an ~18 × 18 m hipped-roof house in it that the rules call building: those
-//! 2,770 points cap building F1 at 0.833 for any classifier that labels the house, so the
-//! 0.85 gate cannot be met on this reference. The test holds the measured level as a
-//! regression floor and prints the figures.
+//! crop's reference leaves a ~38 × 26 m block unclassified (class 1, even the ground), with an
+//! ~18 × 18 m hipped-roof house in it that the rules call building: scored on the whole crop
+//! those points cap building F1 at 0.833 for any classifier that labels the house. The block
+//! is the void polygon `tests/ign_void.geojson` (issue 25), left out of scoring with
+//! `eval labels --exclude`; both scores are printed, the whole-crop one held as a regression
+//! floor.
 
 mod common;
 
@@ -13,6 +14,15 @@ use tessera::eval::{eval_labels, LabelEvalOptions};
 use tessera::Config;
 
 fn run_and_score(input: &Path, extra: &[&str]) -> tessera::eval::labels::LabelEval {
+    run_and_score_excluding(input, extra, &[]).remove(0)
+}
+
+/// Runs the pipeline once and scores it with each of `excludes` (the first score with none).
+fn run_and_score_excluding(
+    input: &Path,
+    extra: &[&str],
+    excludes: &[tessera::eval::polygons::Polygons],
+) -> Vec<tessera::eval::labels::LabelEval> {
     let tmp = tempfile::tempdir().unwrap();
     let mut set: Vec<String> =
         vec!["stages.run=[\"ground\",\"segment\",\"label\",\"stats\"]".into()];
@@ -20,22 +30,28 @@ fn run_and_score(input: &Path, extra: &[&str]) -> tessera::eval::labels::LabelEv
     let airborne = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/airborne.toml");
     let cfg = Config::load(Some(&airborne), &set).unwrap();
     tessera::pipeline::run(&[input.to_path_buf()], tmp.path(), &cfg, &|_, _| {}).unwrap();
-    let e = eval_labels(
-        input,
-        tmp.path(),
-        &LabelEvalOptions {
-            ref_field: "classification".into(),
-            res_field: "classification".into(),
-            classes: vec![1, 2, 6],
-            map: vec![(2, vec![11, 64, 65, 66, 67])],
-            precision_m: 0.001,
-            allow_unmatched: false,
-            x_range: None,
-        },
-    )
-    .unwrap();
-    println!("{}:\n{}", input.display(), e.table());
-    e
+    std::iter::once(Default::default())
+        .chain(excludes.iter().cloned())
+        .map(|exclude| {
+            let e = eval_labels(
+                input,
+                tmp.path(),
+                &LabelEvalOptions {
+                    ref_field: "classification".into(),
+                    res_field: "classification".into(),
+                    classes: vec![1, 2, 6],
+                    map: vec![(2, vec![11, 64, 65, 66, 67])],
+                    precision_m: 0.001,
+                    allow_unmatched: false,
+                    x_range: None,
+                    exclude,
+                },
+            )
+            .unwrap();
+            println!("{}:\n{}", input.display(), e.table());
+            e
+        })
+        .collect()
 }
 
 #[test]
@@ -61,11 +77,66 @@ fn ign_building_and_ground_f1() {
     let Some(f) = common::data_file("ign-lidarhd/870000_6618000.subset.50mx100m.las") else {
         return;
     };
-    let e = run_and_score(&f, &[]);
+    let void = tessera::eval::polygons::Polygons::from_geojson(
+        &Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/ign_void.geojson"),
+    )
+    .unwrap();
+    let scores = run_and_score_excluding(&f, &[], &[void]);
+    let (e, v) = (&scores[0], &scores[1]);
     let (b, g) = (e.row(6).unwrap(), e.row(2).unwrap());
     println!(
         "IGN: building F1 {:.3} (precision {:.3}, recall {:.3}), ground F1 {:.3}",
         b.f1, b.precision, b.recall, g.f1
+    );
+    let (vb, vg) = (v.row(6).unwrap(), v.row(2).unwrap());
+    println!(
+        "IGN, void excluded ({} of {} points scored): building F1 {:.3} (precision {:.3}, recall {:.3}), ground F1 {:.3}",
+        v.points, e.points, vb.f1, vb.precision, vb.recall, vg.f1
+    );
+    // The void holds the unclassified house and its ground: leaving it out must remove
+    // reference class 1 points only, and lift building precision.
+    assert!(v.points < e.points);
+    assert!(
+        vb.precision > b.precision,
+        "{:.3} vs {:.3}",
+        vb.precision,
+        b.precision
+    );
+    // Regression floor; issue 25's gate (≥ 0.90 with the void excluded) is not met yet.
+    assert!(
+        vb.f1 >= 0.88,
+        "void-excluded building F1 {:.3} fell below the measured 0.893",
+        vb.f1
+    );
+
+    // The command line: the same exclusion, and a bad polygon file is an error naming it.
+    let void_file = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/ign_void.geojson");
+    let eval = |extra: &[&std::ffi::OsStr]| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_tessera"))
+            .args(["eval", "labels", "--json", "--reference"])
+            .arg(&f)
+            .arg("--result")
+            .arg(&f)
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let points = |o: &std::process::Output| -> u64 {
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        v["points"].as_u64().unwrap()
+    };
+    let all = points(&eval(&[]));
+    let kept = points(&eval(&["--exclude".as_ref(), void_file.as_os_str()]));
+    assert_eq!((all, kept), (e.points, v.points));
+    let bad = tempfile::NamedTempFile::new().unwrap();
+    std::fs::write(bad.path(), r#"{"type":"Point","coordinates":[1,2]}"#).unwrap();
+    let o = eval(&["--exclude".as_ref(), bad.path().as_os_str()]);
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains(&*bad.path().to_string_lossy()) && err.contains("Point"),
+        "{err}"
     );
     assert!(b.recall >= 0.85, "building recall {:.3}", b.recall);
     assert!(

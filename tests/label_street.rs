@@ -69,6 +69,7 @@ fn street_subclasses_from_samples_of_another_part() {
         precision_m: 0.001,
         allow_unmatched: false,
         x_range: Some((x0, x0 + 200.0)),
+        exclude: Default::default(),
     };
     let e = eval_labels(&scene, &out, &opts(vec![ROAD, CYCLE, FOOTPATH, GRASS])).unwrap();
     println!("ground subclasses, x in [200, 400) m:\n{}", e.table());

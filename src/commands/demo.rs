@@ -54,6 +54,7 @@ pub fn demo(out: &Path, length_m: f64, opts: &RunOpts, quiet: bool) -> anyhow::R
                     tessera::synth::WORLD_OFFSET[0] + 50.0,
                     tessera::synth::WORLD_OFFSET[0] + length_m,
                 )),
+                exclude: Default::default(),
             },
         )?;
         if !quiet {

@@ -36,10 +36,15 @@ pub fn eval(what: EvalCommand) -> anyhow::Result<()> {
             classes,
             map,
             x_range,
+            exclude,
             match_precision_m,
             allow_unmatched,
             json,
         } => {
+            let mut polygons = tessera::eval::polygons::Polygons::default();
+            for f in &exclude {
+                polygons.extend(tessera::eval::polygons::Polygons::from_geojson(f)?);
+            }
             let o = tessera::eval::LabelEvalOptions {
                 ref_field,
                 res_field,
@@ -48,6 +53,7 @@ pub fn eval(what: EvalCommand) -> anyhow::Result<()> {
                 precision_m: match_precision_m,
                 allow_unmatched,
                 x_range: x_range.map(|r| (r.0, r.1)),
+                exclude: polygons,
             };
             let e = tessera::eval::eval_labels(&reference, &result, &o)?;
             print_report(json, &e, &shown(&reference), &shown(&result), || e.table())

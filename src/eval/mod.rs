@@ -3,6 +3,7 @@
 
 pub mod ground;
 pub mod labels;
+pub mod polygons;
 pub mod segments;
 
 use crate::error::{Error, Result};
@@ -309,6 +310,9 @@ pub struct LabelEvalOptions {
     pub allow_unmatched: bool,
     /// Score only reference points with x in this range (e.g. away from training samples).
     pub x_range: Option<(f64, f64)>,
+    /// Reference points inside these polygons are not scored (areas the reference leaves
+    /// unclassified; `--exclude FILE.geojson`).
+    pub exclude: polygons::Polygons,
 }
 
 /// Scores class labels (confusion matrix, omission, commission, mapping accuracy, F1; see
@@ -340,6 +344,9 @@ pub fn eval_labels(
             if !(x >= x0 && x < x1) {
                 continue;
             }
+        }
+        if !o.exclude.is_empty() && o.exclude.contains(r.xyz[k][0], r.xyz[k][1]) {
+            continue;
         }
         want.push(code(r.values[0][k], reference)?);
         got.push(lut[code(s.values[0][i], result)? as usize]);
