@@ -236,9 +236,7 @@ impl BudgetPlan {
         self.max_tile_points = max_tile_points;
         Ok(())
     }
-}
 
-impl BudgetPlan {
     /// Takes `bytes` of the tile memory for `what` (held for the whole run, whatever the
     /// tiles: the report's raster) and shrinks each tile's share accordingly.
     pub fn reserve_outputs(&mut self, bytes: u64, what: &str) -> Result<()> {

@@ -427,11 +427,6 @@ impl TileWriter {
         self.container.compressed()
     }
 
-    /// How tiles are stored.
-    pub fn container(&self) -> Container {
-        self.container
-    }
-
     /// Type of the segment id attribute.
     pub fn id_type(&self) -> SegmentIdType {
         self.id_type
@@ -588,6 +583,14 @@ impl TileWriter {
             }
             Ok(id)
         };
+        // A record's local segment id replaced by its global one.
+        let rewrite = |rec: &mut [u8]| -> Result<()> {
+            let mut raw = [0u8; 8];
+            raw[..w].copy_from_slice(&rec[off..off + w]);
+            let id = global(u64::from_le_bytes(raw))?;
+            rec[off..off + w].copy_from_slice(&id.to_le_bytes()[..w]);
+            Ok(())
+        };
         let file = format!("{}.{}", d.name, self.container.extension());
         let tmp = dir.join(&file);
         let mut pending = PendingTile {
@@ -613,15 +616,8 @@ impl TileWriter {
                     Some(crate::sys::map_readonly(&file).map_err(|e| Error::io(&d.raw, e))?)
                 };
                 let records: &[u8] = map.as_deref().unwrap_or(&[]);
-                let edit = |rec: &mut [u8]| -> Result<()> {
-                    let mut raw = [0u8; 8];
-                    raw[..w].copy_from_slice(&rec[off..off + w]);
-                    let id = global(u64::from_le_bytes(raw))?;
-                    rec[off..off + w].copy_from_slice(&id.to_le_bytes()[..w]);
-                    Ok(())
-                };
                 let mut observe = |b: &[u8]| self.tell(&d.name, b);
-                crate::io::copc::write(&tmp, &self.header, records, &edit, &mut observe)?;
+                crate::io::copc::write(&tmp, &self.header, records, &rewrite, &mut observe)?;
                 if let Some(m) = &map {
                     // Touched file pages count in the resident set until reclaimed.
                     crate::sys::release_mapped(m, 0, m.len());
@@ -638,10 +634,7 @@ impl TileWriter {
                 let mut buf = vec![0u8; n * rl];
                 src.read_exact(&mut buf).map_err(|e| Error::io(&d.raw, e))?;
                 for rec in buf.chunks_exact_mut(rl) {
-                    let mut raw = [0u8; 8];
-                    raw[..w].copy_from_slice(&rec[off..off + w]);
-                    let id = global(u64::from_le_bytes(raw))?;
-                    rec[off..off + w].copy_from_slice(&id.to_le_bytes()[..w]);
+                    rewrite(rec)?;
                 }
                 self.tell(&d.name, &buf)?;
                 let data = PointDataBuilder::new()
