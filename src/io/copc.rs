@@ -8,8 +8,8 @@
 //! from the stitching spill): a node keeps the first point of each occupied cell of a
 //! [`GRID`]³ grid over its cube (the level-of-detail sample; the node's spacing is its side /
 //! [`GRID`], the usual COPC convention) and hands the others to its eight children, until a
-//! node holds at most [`MAX_NODE_POINTS`]. Extra memory: 8 bytes per point (the permutation
-//! and its scratch copy), a 256 KiB cell bitmap and one node's records.
+//! node holds at most [`MAX_NODE_POINTS`]. Extra memory: 9 bytes per point (the permutation,
+//! its scratch copy and a bucket byte), a 256 KiB cell bitmap and one node's records.
 //!
 //! Every point lies inside its node's cube as readers compute it (`min + key · side`, with
 //! `side = (max − min) / 2^level` in `f64`): splits compare against exactly those
