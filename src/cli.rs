@@ -178,6 +178,10 @@ pub enum Command {
     /// Summarise training samples for the labelling stage (mean and σ of L*, a*, b* per sample)
     /// into a JSON file for `label.samples`.
     Samples(SamplesArgs),
+    /// Train the labelling classifier (`label.model`) on classified LAS/LAZ files: the
+    /// pipeline runs on them as configured, and the descriptors of every point whose
+    /// reference class the class map names become training samples of a random forest.
+    Train(TrainArgs),
     /// Synthesise a small street scene and run the pipeline on it.
     Demo {
         /// Output directory (default: ./tessera-demo).
@@ -270,6 +274,26 @@ pub struct SamplesArgs {
     pub out: PathBuf,
 }
 
+/// Arguments of `tessera train`.
+#[derive(Debug, Args, Clone)]
+pub struct TrainArgs {
+    /// Classified LAS/LAZ files or directories (the reference classes in `--ref-field`).
+    #[arg(required = true)]
+    pub inputs: Vec<PathBuf>,
+    /// Class map (TOML, `field = …` and `[[class]] code = …, reference = […]`): reference
+    /// codes → tessera codes, e.g. config/semantickitti.toml. Repeatable: each file uses the
+    /// first map whose `field` it has (so a map of a truth attribute such as `gt_class`
+    /// goes before one of `classification`). Points of unmapped codes are not trained on.
+    #[arg(long, required = true)]
+    pub class_map: Vec<PathBuf>,
+    /// The model file to write (JSON).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Configuration (the pipeline the model will run in; `label.train.*` for the forest).
+    #[command(flatten)]
+    pub cfg: ConfigOpts,
+}
+
 /// Synthetic scenes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum SceneKind {
@@ -331,6 +355,11 @@ pub enum EvalCommand {
         /// Score only reference points with x0 <= x < x1 (e.g. away from training samples).
         #[arg(long, value_name = "X0,X1")]
         x_range: Option<XRange>,
+        /// Class map (TOML, e.g. config/semantickitti.toml): reference codes are translated to
+        /// tessera codes before scoring, unmapped ones are not scored; the scored classes
+        /// default to the map's.
+        #[arg(long, value_name = "FILE.toml")]
+        class_map: Option<PathBuf>,
         /// Leave out reference points inside the polygons of this GeoJSON file (Polygon /
         /// MultiPolygon, in the data's CRS; repeatable), e.g. a block the reference left
         /// unclassified.

@@ -45,6 +45,7 @@ fn run_and_score_excluding(
                     allow_unmatched: false,
                     x_range: None,
                     exclude,
+                    ref_map: None,
                 },
             )
             .unwrap();

@@ -70,6 +70,7 @@ fn street_subclasses_from_samples_of_another_part() {
         allow_unmatched: false,
         x_range: Some((x0, x0 + 200.0)),
         exclude: Default::default(),
+        ref_map: None,
     };
     let e = eval_labels(&scene, &out, &opts(vec![ROAD, CYCLE, FOOTPATH, GRASS])).unwrap();
     println!("ground subclasses, x in [200, 400) m:\n{}", e.table());

@@ -55,6 +55,7 @@ pub fn demo(out: &Path, length_m: f64, opts: &RunOpts, quiet: bool) -> anyhow::R
                     tessera::synth::WORLD_OFFSET[0] + length_m,
                 )),
                 exclude: Default::default(),
+                ref_map: None,
             },
         )?;
         if !quiet {

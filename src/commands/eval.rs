@@ -36,11 +36,16 @@ pub fn eval(what: EvalCommand) -> anyhow::Result<()> {
             classes,
             map,
             x_range,
+            class_map,
             exclude,
             match_precision_m,
             allow_unmatched,
             json,
         } => {
+            let ref_map = class_map
+                .as_deref()
+                .map(tessera::label::model::ClassMap::load)
+                .transpose()?;
             let mut polygons = tessera::eval::polygons::Polygons::default();
             for f in &exclude {
                 polygons.extend(tessera::eval::polygons::Polygons::from_geojson(f)?);
@@ -54,6 +59,7 @@ pub fn eval(what: EvalCommand) -> anyhow::Result<()> {
                 allow_unmatched,
                 x_range: x_range.map(|r| (r.0, r.1)),
                 exclude: polygons,
+                ref_map,
             };
             let e = tessera::eval::eval_labels(&reference, &result, &o)?;
             print_report(json, &e, &shown(&reference), &shown(&result), || e.table())

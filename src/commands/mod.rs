@@ -11,6 +11,7 @@ mod samples;
 mod slurm;
 mod synth;
 mod thin;
+mod train;
 
 use tessera::cli::{Cli, Command};
 
@@ -73,6 +74,7 @@ pub fn dispatch(cli: Cli) -> anyhow::Result<()> {
             opts,
         } => demo::demo(&out, length_m, &opts, quiet),
         Command::Samples(args) => samples::samples(args),
+        Command::Train(args) => train::train(args, quiet),
         Command::Thin {
             spacing,
             input,

@@ -313,6 +313,9 @@ pub struct LabelEvalOptions {
     /// Reference points inside these polygons are not scored (areas the reference leaves
     /// unclassified; `--exclude FILE.geojson`).
     pub exclude: polygons::Polygons,
+    /// Reference codes translated to tessera codes before scoring (unmapped: not scored);
+    /// with no `classes` given, the map's classes are scored.
+    pub ref_map: Option<crate::label::model::ClassMap>,
 }
 
 /// Scores class labels (confusion matrix, omission, commission, mapping accuracy, F1; see
@@ -348,10 +351,21 @@ pub fn eval_labels(
         if !o.exclude.is_empty() && o.exclude.contains(r.xyz[k][0], r.xyz[k][1]) {
             continue;
         }
-        want.push(code(r.values[0][k], reference)?);
+        let w = match &o.ref_map {
+            Some(m) => match m.code_of(r.values[0][k]) {
+                0 => continue,
+                c => c,
+            },
+            None => code(r.values[0][k], reference)?,
+        };
+        want.push(w);
         got.push(lut[code(s.values[0][i], result)? as usize]);
     }
-    Ok(labels::evaluate(&want, &got, &o.classes))
+    let classes = match &o.ref_map {
+        Some(m) if o.classes.is_empty() => m.codes(),
+        _ => o.classes.clone(),
+    };
+    Ok(labels::evaluate(&want, &got, &classes))
 }
 
 #[cfg(test)]

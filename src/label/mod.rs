@@ -1,9 +1,13 @@
 //! Labelling (street-level document `003`, chapter 5 §7–9): ground subclasses from colour
 //! regions and training samples ([`ground`], [`samples`]), non-ground classes from segment and
-//! object geometry ([`objects`]).
+//! object geometry ([`objects`]); optionally a trained classifier over multi-scale point
+//! descriptors ([`descriptors`], [`forest`], [`model`]; `tessera train`) that refines them.
 
+pub mod descriptors;
+pub mod forest;
 pub mod ground;
 pub mod kerbs;
+pub mod model;
 pub mod objects;
 pub mod samples;
 

@@ -326,6 +326,10 @@ pub struct ObjectStats {
     pub objects: usize,
     /// Points per class.
     pub points: HashMap<ObjectClass, usize>,
+    /// Object of each tile point (1..=objects; 0: building segment, ground or not
+    /// classified), for the classifier's object features.
+    #[serde(skip)]
+    pub object: Vec<u32>,
 }
 
 /// Classifies the points with `todo` set. Returns a class per tile point (`None` where
@@ -454,11 +458,16 @@ pub fn classify_objects(
         }
     }
     stats.objects = objects.len();
-    for (root, idx) in &objects {
+    stats.object = vec![0; n];
+    let mut roots: Vec<u32> = objects.keys().copied().collect();
+    roots.sort_unstable();
+    for (k, root) in roots.iter().enumerate() {
+        let idx = &objects[root];
         let sh = shape(inp.xyz, idx, &hag);
         let c = classify_shape(&sh, p, touching.contains_key(root));
         for &i in idx {
             out[i as usize] = Some(c);
+            stats.object[i as usize] = k as u32 + 1;
         }
     }
     for c in out.iter().flatten() {

@@ -21,6 +21,7 @@ pub mod stitch_dir;
 pub mod task;
 mod tiler;
 mod tokens;
+pub mod train;
 pub mod units;
 mod worker;
 mod writer;

@@ -5,8 +5,11 @@
 
 use super::stage::{parse_section, Attribute, Stage, StageSpec, TileReport};
 use crate::error::{Error, Result};
+use crate::label::descriptors::{self, DescribeInput, Descriptors};
+use crate::label::forest::ForestParams;
 use crate::label::kerbs::{classify_by_kerbs, KerbRule};
-use crate::label::objects::ObjectStats;
+use crate::label::model::{Collector, Model};
+use crate::label::objects::{GroundGrid, ObjectStats};
 use crate::label::{
     classify_objects, label_ground, GroundLabelParams, LabelCodes, ObjectClass, ObjectInput,
     ObjectParams, SampleSet,
@@ -46,6 +49,13 @@ pub struct LabelSection {
     /// Class codes.
     #[serde(default)]
     pub codes: LabelCodes,
+    /// A model written by `tessera train` (empty: the rules alone). Its classifier relabels
+    /// the zone's points from multi-scale descriptors, with the rules' classes among them.
+    #[serde(default)]
+    pub model: String,
+    /// Parameters of `tessera train`.
+    #[serde(default)]
+    pub train: ForestParams,
 }
 
 fn default_block() -> f64 {
@@ -68,6 +78,8 @@ impl Default for LabelSection {
             ground: GroundLabelParams::default(),
             objects: ObjectParams::default(),
             codes: LabelCodes::default(),
+            model: String::new(),
+            train: ForestParams::default(),
         }
     }
 }
@@ -77,6 +89,9 @@ impl Default for LabelSection {
 pub struct LabelStage {
     section: LabelSection,
     samples: Option<Arc<SampleSet>>,
+    model: Option<Arc<Model>>,
+    /// Training mode (`tessera train`): the zone's core points' descriptors go here.
+    collector: Option<Arc<Collector>>,
 }
 
 impl LabelSection {
@@ -91,6 +106,17 @@ impl LabelSection {
             return Err(Error::Config(
                 "label: ground.k must be >= 3, ground.radius_m > 0, context_m and ground.context_m >= 0"
                     .into(),
+            ));
+        }
+        let t = &self.train;
+        if t.trees == 0
+            || t.trees > 10_000
+            || t.max_depth > 64
+            || t.per_class == 0
+            || t.max_samples_per_class == 0
+        {
+            return Err(Error::Config(
+                "label.train: trees 1..=10000, max_depth <= 64, per_class and max_samples_per_class >= 1".into(),
             ));
         }
         Ok(())
@@ -133,7 +159,33 @@ impl LabelStage {
             );
             Some(Arc::new(set))
         };
-        Ok(LabelStage { section, samples })
+        let model = if section.model.is_empty() {
+            None
+        } else {
+            let m = Model::load(&PathBuf::from(&section.model))?;
+            tracing::info!(
+                "label: model {} ({} trees, classes {:?})",
+                section.model,
+                m.forest.trees.len(),
+                m.classes
+            );
+            Some(Arc::new(m))
+        };
+        Ok(LabelStage {
+            section,
+            samples,
+            model,
+            collector: None,
+        })
+    }
+
+    /// The stage in training mode: labels as configured (the rules, and the model if one is
+    /// set) and hands the descriptors of its core points with a reference class to
+    /// `collector`.
+    pub fn for_training(section: LabelSection, collector: Arc<Collector>) -> Result<Self> {
+        let mut s = LabelStage::new(section)?;
+        s.collector = Some(collector);
+        Ok(s)
     }
 }
 
@@ -159,7 +211,16 @@ impl Stage for LabelStage {
         } else {
             0
         };
-        self.section.codes.max().max(samples).max(geometry)
+        let model = self
+            .model
+            .as_ref()
+            .map_or(0, |m| m.classes.iter().copied().max().unwrap_or(0));
+        self.section
+            .codes
+            .max()
+            .max(samples)
+            .max(geometry)
+            .max(model)
     }
     fn context_m(&self) -> Option<f64> {
         Some(self.section.context_m)
@@ -171,7 +232,15 @@ impl Stage for LabelStage {
         // context point including the per-tile arrays below (synthetic street, 1.0 M of a
         // tile's 1.27 M points in the context; 218 B when the rows were packed into a second
         // copy, 348 B with the per-point lists of the kd-tree search).
-        8 * self.section.ground.k + 40
+        // The classifier's descriptors: a voxel index per scale and column, per-voxel block
+        // statistics (36 B per voxel, at most one voxel per point and scale), the copies of
+        // coordinates, heights and flags of its points (~60 B).
+        let classifier = if self.model.is_some() || self.collector.is_some() {
+            160
+        } else {
+            0
+        };
+        8 * self.section.ground.k + 40 + classifier
     }
     fn bytes_per_tile_point(&self) -> usize {
         // Flags, classes, heights above ground, voxel and object ids built for every tile
@@ -220,7 +289,7 @@ impl Stage for LabelStage {
             .collect();
         let mut new_class = classes.clone();
         // Seconds: neighbours, normals, colour, ground labelling, objects.
-        let mut times = [0.0f64; 5];
+        let mut times = [0.0f64; 6];
         let ground_report = if gidx.is_empty() {
             serde_json::Value::Null
         } else {
@@ -239,6 +308,20 @@ impl Stage for LabelStage {
                 new_class[i] = self.section.codes.of(*c);
             }
         }
+        let t = std::time::Instant::now();
+        let relabelled = if self.model.is_some() || self.collector.is_some() {
+            self.classify_points(
+                tile,
+                layout,
+                &classes,
+                &is_ground,
+                &ostats.object,
+                &mut new_class,
+            )
+        } else {
+            0
+        };
+        times[5] = t.elapsed().as_secs_f64();
         for (rec, (&c, &z)) in tile
             .records
             .chunks_exact_mut(rl)
@@ -255,9 +338,10 @@ impl Stage for LabelStage {
                 "building_segments": ostats.building_segments,
                 "objects": ostats.objects,
                 "nonground_points": ostats.points,
+                "classifier_points": relabelled,
                 "seconds": {
                     "neighbours": times[0], "normals": times[1], "colour": times[2],
-                    "ground_regions": times[3], "objects": times[4],
+                    "ground_regions": times[3], "objects": times[4], "classifier": times[5],
                 },
             }),
         );
@@ -274,7 +358,7 @@ impl LabelStage {
         layout: &RecordLayout,
         gidx: &[usize],
         new_class: &mut [u8],
-        times: &mut [f64; 5],
+        times: &mut [f64; 6],
     ) -> serde_json::Value {
         let rl = layout.record_len;
         let o = tile.xyz[gidx[0]];
@@ -337,6 +421,129 @@ impl LabelStage {
             "regions": gl.regions,
             "regions_unknown": gl.regions_unknown,
         })
+    }
+
+    /// The rule class of a point as an index into [`descriptors::RULES`].
+    fn rule_index(&self, code: u8, ground: bool) -> u8 {
+        let c = &self.section.codes;
+        let g = &self.section.ground;
+        let geometry = self.samples.is_none() && g.geometry;
+        if ground {
+            match code {
+                _ if geometry && code == g.geometry_codes[0] => 6,
+                _ if geometry && code == g.geometry_codes[1] => 7,
+                _ if geometry && code == g.geometry_codes[2] => 8,
+                _ => 0,
+            }
+        } else if code == c.building {
+            1
+        } else if code == c.high_vegetation {
+            2
+        } else if code == c.pole {
+            3
+        } else if code == c.vehicle {
+            4
+        } else {
+            5
+        }
+    }
+
+    /// The classifier: descriptors of the zone's points (not noise), over those and the points
+    /// a few metres around them, then the model's class (ground points get a ground class,
+    /// the others a non-ground class), or in training mode the descriptors of the core points
+    /// with a reference class to the collector. Returns the points it classified.
+    fn classify_points(
+        &self,
+        tile: &Tile,
+        layout: &RecordLayout,
+        classes: &[u8],
+        is_ground: &[bool],
+        object: &[u32],
+        new_class: &mut [u8],
+    ) -> usize {
+        let rl = layout.record_len;
+        let zone = tile.context_mask(self.section.context_m);
+        // The coarsest scale's block reaches 1.5 voxels (4.8 m) from a point.
+        let around = tile.context_mask(self.section.context_m + 5.0);
+        let sub: Vec<usize> = (0..tile.len()).filter(|&i| around[i]).collect();
+        let xyz: Vec<[f64; 3]> = sub.iter().map(|&i| tile.xyz[i]).collect();
+        let ground: Vec<bool> = sub.iter().map(|&i| is_ground[i]).collect();
+        let grid = GroundGrid::new(&xyz, &ground, self.section.objects.ground_cell_m);
+        let hag: Vec<f64> = xyz.iter().map(|p| grid.height(p)).collect();
+        let segment: Vec<u32> = if tile.segments.len() == tile.len() {
+            sub.iter().map(|&i| tile.segments[i]).collect()
+        } else {
+            vec![0; sub.len()]
+        };
+        let object: Vec<u32> = sub.iter().map(|&i| object[i]).collect();
+        let rule: Vec<u8> = sub
+            .iter()
+            .map(|&i| self.rule_index(new_class[i], is_ground[i]))
+            .collect();
+        let rec = |i: usize| &tile.records[i * rl..(i + 1) * rl];
+        let has_returns = sub.iter().any(|&i| layout.returns(rec(i)).1 > 1);
+        let (non_last, returns): (Vec<bool>, Vec<u8>) = sub
+            .iter()
+            .map(|&i| {
+                let (r, n) = layout.returns(rec(i));
+                (r < n, n)
+            })
+            .unzip();
+        // Intensity (bytes 12–13 of every format) scaled by the 99th percentile.
+        let raw: Vec<u16> = sub
+            .iter()
+            .map(|&i| u16::from_le_bytes([rec(i)[12], rec(i)[13]]))
+            .collect();
+        let intensity: Option<Vec<f32>> = {
+            let mut s: Vec<u16> = raw.iter().copied().step_by(7).collect();
+            s.sort_unstable();
+            let p99 = s.get(s.len() * 99 / 100).copied().unwrap_or(0);
+            (p99 > 0).then(|| {
+                raw.iter()
+                    .map(|&v| (v as f32 / p99 as f32).min(2.0))
+                    .collect()
+            })
+        };
+        let which: Vec<bool> = sub
+            .iter()
+            .map(|&i| zone[i] && !matches!(classes[i], 7 | 18))
+            .collect();
+        let inp = DescribeInput {
+            xyz: &xyz,
+            hag: &hag,
+            is_ground: &ground,
+            segment: &segment,
+            object: &object,
+            rule: &rule,
+            non_last: has_returns.then_some(&non_last[..]),
+            returns: has_returns.then_some(&returns[..]),
+            intensity: intensity.as_deref(),
+        };
+        let d = Descriptors::new(&inp, &which);
+        let mut row = vec![0.0f32; descriptors::feature_count()];
+        let mut scratch = Vec::new();
+        let allowed = self.model.as_ref().map(|m| m.allowed());
+        let mut done = 0;
+        for (k, &i) in sub.iter().enumerate() {
+            if !which[k] {
+                continue;
+            }
+            d.row(k, &mut row);
+            if let Some(c) = &self.collector {
+                let code = c.code_of(tile.ids[i]);
+                if i < tile.n_core && code != 0 {
+                    c.add(code, tile.ids[i], is_ground[i], &row);
+                }
+            }
+            if let (Some(m), Some(a)) = (&self.model, &allowed) {
+                let a = &a[usize::from(!is_ground[i])];
+                if a.iter().any(|&v| v) {
+                    new_class[i] = m.classes[m.forest.predict(&row, a, &mut scratch)];
+                    done += 1;
+                }
+            }
+        }
+        done
     }
 
     /// Object classes of the points marked `todo` (non-ground, not noise, in the zone).
