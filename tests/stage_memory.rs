@@ -263,5 +263,24 @@ fn stages_stay_within_their_declared_memory() {
     failures.extend(check("simulated drive (MCAP, 512 MiB)", &drive));
     let street = measure(&d.join("street"), &d.join("out_street"), &[]);
     failures.extend(check("synthetic street (1 GiB)", &street));
+    // The labelling stage with a trained classifier (issue 25): its descriptors are charged
+    // on top. Trained on the street's own truth; measured on the street (dense) and on the
+    // drive (sparse single-scan density far from the sensor: about one point per finest voxel).
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let map = tessera::label::model::ClassMap::load(&root.join("config/synthetic.toml")).unwrap();
+    let cfg = tessera::Config::load(None, &["label.train.trees=4".into()]).unwrap();
+    let (model, _) =
+        tessera::pipeline::train::train(&[d.join("street")], &[map], &cfg, d).unwrap();
+    let model_path = d.join("model.json");
+    model.save(&model_path).unwrap();
+    let set = format!("label.model={:?}", model_path.display().to_string());
+    let street = measure(&d.join("street"), &d.join("out_street_model"), &[&set]);
+    failures.extend(check("synthetic street with a model (1 GiB)", &street));
+    let drive = measure(
+        &d.join("drive/drive.mcap"),
+        &d.join("out_drive_model"),
+        &["pipeline.memory_budget_mb=512", &set],
+    );
+    failures.extend(check("simulated drive with a model (MCAP, 512 MiB)", &drive));
     assert!(failures.is_empty(), "{failures:#?}");
 }

@@ -150,6 +150,133 @@ pub struct DescribeInput<'a> {
     pub intensity: Option<&'a [f32]>,
 }
 
+/// Sums over the points of a voxel.
+#[derive(Clone, Copy)]
+struct Acc {
+    sum: [f64; 3],
+    n: u32,
+    multi: u32,
+    zmin: f32,
+    zmax: f32,
+}
+
+impl Acc {
+    fn of_point(p: &[f64; 3], multi: bool) -> Acc {
+        Acc {
+            sum: *p,
+            n: 1,
+            multi: u32::from(multi),
+            zmin: p[2] as f32,
+            zmax: p[2] as f32,
+        }
+    }
+    fn merge(&mut self, o: &Acc) {
+        for (s, v) in self.sum.iter_mut().zip(&o.sum) {
+            *s += v;
+        }
+        self.n += o.n;
+        self.multi += o.multi;
+        self.zmin = self.zmin.min(o.zmin);
+        self.zmax = self.zmax.max(o.zmax);
+    }
+    fn centroid(&self) -> [f64; 3] {
+        self.sum.map(|s| s / self.n as f64)
+    }
+}
+
+/// The occupied voxels of one scale.
+#[derive(Default)]
+struct Voxels {
+    map: KeyMap,
+    keys: Vec<[i64; 3]>,
+    acc: Vec<Acc>,
+}
+
+impl Voxels {
+    /// Adds `a` to voxel `k`; returns the voxel's index.
+    fn add(&mut self, k: [i64; 3], a: &Acc) -> u32 {
+        let next = self.acc.len() as u32;
+        let id = *self.map.entry(pack(k[0], k[1], k[2])).or_insert(next);
+        if id == next {
+            self.keys.push(k);
+            self.acc.push(*a);
+        } else {
+            self.acc[id as usize].merge(a);
+        }
+        id
+    }
+
+    /// Per voxel (the `wanted` ones; the others stay −1): the statistics of the centroids of
+    /// its 3 × 3 × 3 block, see [`Scale::stats`].
+    fn block_stats(&self, wanted: &[bool], returns: bool) -> Vec<[f32; 10]> {
+        let centroid: Vec<[f64; 3]> = self.acc.iter().map(Acc::centroid).collect();
+        let mut stats = vec![[-1.0f32; 10]; self.acc.len()];
+        let mut block: Vec<u32> = Vec::with_capacity(27);
+        for (v, k) in self.keys.iter().enumerate() {
+            if !wanted[v] {
+                continue;
+            }
+            block.clear();
+            for dz in -1..=1 {
+                for dy in -1..=1 {
+                    for dx in -1..=1 {
+                        if let Some(&w) = self.map.get(&pack(k[0] + dx, k[1] + dy, k[2] + dz)) {
+                            block.push(w);
+                        }
+                    }
+                }
+            }
+            let n = block.len() as f64;
+            let mut m = [0.0; 3];
+            let (mut zmin, mut zmax) = (f32::INFINITY, f32::NEG_INFINITY);
+            let (mut points, mut multis) = (0u32, 0u32);
+            for &w in &block {
+                let a = &self.acc[w as usize];
+                points += a.n;
+                multis += a.multi;
+                let c = centroid[w as usize];
+                for (mm, cc) in m.iter_mut().zip(c) {
+                    *mm += cc / n;
+                }
+                zmin = zmin.min(a.zmin);
+                zmax = zmax.max(a.zmax);
+            }
+            let shape = if block.len() >= 3 {
+                let mut cov = [[0.0; 3]; 3];
+                for &w in &block {
+                    let c = centroid[w as usize];
+                    let d = [c[0] - m[0], c[1] - m[1], c[2] - m[2]];
+                    for r in 0..3 {
+                        for s in 0..3 {
+                            cov[r][s] += d[r] * d[s] / n;
+                        }
+                    }
+                }
+                eigen_shape(cov)
+            } else {
+                [-1.0; 5]
+            };
+            stats[v] = [
+                block.len() as f32 / 27.0,
+                shape[0],
+                shape[1],
+                shape[2],
+                shape[3],
+                shape[4],
+                m[2] as f32,
+                zmin,
+                zmax,
+                if returns {
+                    multis as f32 / points.max(1) as f32
+                } else {
+                    -1.0
+                },
+            ];
+        }
+        stats
+    }
+}
+
 /// Per-voxel block statistics of one scale.
 struct Scale {
     edge: f64,
@@ -209,10 +336,7 @@ impl<'a> Descriptors<'a> {
             .iter()
             .map(|p| [p[0] - origin[0], p[1] - origin[1], p[2] - origin[2]])
             .collect();
-        let scales = SCALES
-            .iter()
-            .map(|&e| Self::scale(&local, which, inp.returns, e))
-            .collect();
+        let scales = Self::scales(&local, which, inp.returns);
         let columns = COLUMNS
             .iter()
             .map(|&c| {
@@ -251,115 +375,58 @@ impl<'a> Descriptors<'a> {
         }
     }
 
-    fn scale(local: &[[f64; 3]], which: &[bool], returns: Option<&[u8]>, edge: f64) -> Scale {
-        let key = |p: &[f64; 3]| {
-            [
-                (p[0] / edge).floor() as i64,
-                (p[1] / edge).floor() as i64,
-                (p[2] / edge).floor() as i64,
-            ]
-        };
-        let mut map = KeyMap::default();
-        // Per voxel: sum x, y, z, count, min z, max z; points of multi-return pulses.
-        let mut acc: Vec<([f64; 3], u32, f32, f32)> = Vec::new();
-        let mut multi: Vec<u32> = Vec::new();
-        let mut keys: Vec<[i64; 3]> = Vec::new();
-        let voxel: Vec<u32> = local
+    /// The scales, finest first: the finest voxels from the points, each coarser scale from
+    /// the one below (a voxel of edge 2e is the union of 2 × 2 × 2 voxels of edge e, so its
+    /// sums are theirs: the points are hashed once, not once per scale).
+    fn scales(local: &[[f64; 3]], which: &[bool], returns: Option<&[u8]>) -> Vec<Scale> {
+        let e0 = SCALES[0];
+        let mut vox = Voxels::default();
+        let mut voxel: Vec<u32> = local
             .iter()
-            .map(|p| {
-                let k = key(p);
-                let next = acc.len() as u32;
-                let id = *map.entry(pack(k[0], k[1], k[2])).or_insert_with(|| {
-                    acc.push(([0.0; 3], 0, f32::INFINITY, f32::NEG_INFINITY));
-                    multi.push(0);
-                    keys.push(k);
-                    next
-                });
-                let a = &mut acc[id as usize];
-                for (s, v) in a.0.iter_mut().zip(p) {
-                    *s += v;
-                }
-                a.1 += 1;
-                a.2 = a.2.min(p[2] as f32);
-                a.3 = a.3.max(p[2] as f32);
-                id
+            .enumerate()
+            .map(|(i, p)| {
+                let k = [0, 1, 2].map(|c| (p[c] / e0).floor() as i64);
+                let multi = returns.is_some_and(|r| r[i] > 1);
+                vox.add(k, &Acc::of_point(p, multi))
             })
             .collect();
-        if let Some(r) = returns {
-            for (i, &v) in voxel.iter().enumerate() {
-                multi[v as usize] += u32::from(r[i] > 1);
-            }
-        }
-        let centroid: Vec<[f64; 3]> = acc.iter().map(|a| a.0.map(|s| s / a.1 as f64)).collect();
-        let mut wanted = vec![false; acc.len()];
+        let mut wanted = vec![false; vox.acc.len()];
         for (i, &w) in which.iter().enumerate() {
             if w {
                 wanted[voxel[i] as usize] = true;
             }
         }
-        let mut stats = vec![[-1.0f32; 10]; acc.len()];
-        let mut block: Vec<u32> = Vec::with_capacity(27);
-        for (v, k) in keys.iter().enumerate() {
-            if !wanted[v] {
-                continue;
-            }
-            block.clear();
-            for dz in -1..=1 {
-                for dy in -1..=1 {
-                    for dx in -1..=1 {
-                        if let Some(&w) = map.get(&pack(k[0] + dx, k[1] + dy, k[2] + dz)) {
-                            block.push(w);
-                        }
+        let mut out = Vec::with_capacity(SCALES.len());
+        for (s, &edge) in SCALES.iter().enumerate() {
+            let stats = vox.block_stats(&wanted, returns.is_some());
+            if s + 1 < SCALES.len() {
+                let mut up = Voxels::default();
+                let parent: Vec<u32> = vox
+                    .keys
+                    .iter()
+                    .zip(&vox.acc)
+                    .map(|(k, a)| up.add(k.map(|v| v.div_euclid(2)), a))
+                    .collect();
+                let mut up_wanted = vec![false; up.acc.len()];
+                for (v, &w) in wanted.iter().enumerate() {
+                    if w {
+                        up_wanted[parent[v] as usize] = true;
                     }
                 }
-            }
-            let n = block.len() as f64;
-            let mut m = [0.0; 3];
-            let (mut zmin, mut zmax) = (f32::INFINITY, f32::NEG_INFINITY);
-            let (mut points, mut multis) = (0u32, 0u32);
-            for &w in &block {
-                points += acc[w as usize].1;
-                multis += multi[w as usize];
-                let c = centroid[w as usize];
-                for a in 0..3 {
-                    m[a] += c[a] / n;
-                }
-                zmin = zmin.min(acc[w as usize].2);
-                zmax = zmax.max(acc[w as usize].3);
-            }
-            let shape = if block.len() >= 3 {
-                let mut cov = [[0.0; 3]; 3];
-                for &w in &block {
-                    let c = centroid[w as usize];
-                    let d = [c[0] - m[0], c[1] - m[1], c[2] - m[2]];
-                    for r in 0..3 {
-                        for s in 0..3 {
-                            cov[r][s] += d[r] * d[s] / n;
-                        }
-                    }
-                }
-                eigen_shape(cov)
+                let next: Vec<u32> = voxel.iter().map(|&v| parent[v as usize]).collect();
+                out.push(Scale { edge, voxel, stats });
+                voxel = next;
+                vox = up;
+                wanted = up_wanted;
             } else {
-                [-1.0; 5]
-            };
-            stats[v] = [
-                block.len() as f32 / 27.0,
-                shape[0],
-                shape[1],
-                shape[2],
-                shape[3],
-                shape[4],
-                m[2] as f32,
-                zmin,
-                zmax,
-                if returns.is_some() {
-                    multis as f32 / points.max(1) as f32
-                } else {
-                    -1.0
-                },
-            ];
+                out.push(Scale {
+                    edge,
+                    voxel: std::mem::take(&mut voxel),
+                    stats,
+                });
+            }
         }
-        Scale { edge, voxel, stats }
+        out
     }
 
     /// Writes the features of point `i` into `out` ([`feature_count`] values).

@@ -128,7 +128,7 @@ impl Model {
     /// Loads a model and checks it was trained with this version's features.
     pub fn load(path: &Path) -> Result<Model> {
         let text = crate::io::files::read_text_bounded(path, 1 << 30)?;
-        let m: Model = serde_json::from_str(&text)
+        let mut m: Model = serde_json::from_str(&text)
             .map_err(|e| Error::bad_input(path, format!("not a tessera model: {e}")))?;
         if m.format != FORMAT {
             return Err(Error::bad_input(
@@ -153,7 +153,7 @@ impl Model {
                 "inconsistent model (class or feature counts)",
             ));
         }
-        m.forest.check().map_err(|e| Error::bad_input(path, e))?;
+        m.forest = m.forest.checked().map_err(|e| Error::bad_input(path, e))?;
         Ok(m)
     }
 
@@ -308,6 +308,50 @@ mod tests {
         )
         .unwrap();
         assert!(ClassMap::load(&p).is_err());
+    }
+
+    #[test]
+    fn damaged_model_files_are_errors() {
+        use crate::label::forest::{Forest, ForestParams};
+        let dir = tempfile::tempdir().unwrap();
+        let nf = descriptors::feature_count();
+        // A tiny valid model: two classes split on feature 0.
+        let mut x = vec![0.0f32; 40 * nf];
+        let y: Vec<u16> = (0..40).map(|i| (i % 2) as u16).collect();
+        for i in 0..40 {
+            x[i * nf] = (i % 2) as f32;
+        }
+        let p = ForestParams {
+            trees: 2,
+            per_class: 20,
+            ..Default::default()
+        };
+        let m = Model {
+            format: FORMAT.into(),
+            features: descriptors::feature_names(),
+            classes: vec![6, 5],
+            ground: vec![false, false],
+            samples: vec![20, 20],
+            trained_on: vec![],
+            params: p.clone(),
+            forest: Forest::train(&x, &y, nf, 2, &p),
+        };
+        let path = dir.path().join("m.json");
+        m.save(&path).unwrap();
+        assert!(Model::load(&path).is_ok());
+        let text = std::fs::read_to_string(&path).unwrap();
+        let cases = [
+            ("truncated", text[..text.len() / 2].to_string()),
+            ("format", text.replace(FORMAT, "tessera-forest/0")),
+            ("features", text.replacen("s0.1_occupancy", "s0.1_other", 1)),
+            // A split pointing back to the root would loop forever.
+            ("loop", text.replacen("\"left\":[1,", "\"left\":[0,", 1)),
+        ];
+        for (what, t) in cases {
+            std::fs::write(&path, &t).unwrap();
+            let e = Model::load(&path).expect_err(what).to_string();
+            assert!(e.contains("m.json"), "{what}: {e}");
+        }
     }
 
     #[test]

@@ -1,0 +1,105 @@
+//! `tessera train` from the command line (issue 25): a model trained on a synthetic street's
+//! truth (`gt_class` through config/synthetic.toml) is written atomically with no work files
+//! left behind, `label.model` uses it, and bad class maps, inputs and model files are clear
+//! errors with the right exit codes and no output.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn tessera(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_tessera"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+#[test]
+fn train_then_run_with_the_model_and_refuse_bad_inputs() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let synthetic = root.join("config/synthetic.toml");
+    let kitti = root.join("config/semantickitti.toml");
+    let d = tempfile::tempdir().unwrap();
+    let scene = d.path().join("scene");
+    let o = tessera(&["synth", "--length-m", "20", "--seed", "4", "--out", s(&scene)]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let models = d.path().join("models");
+    std::fs::create_dir_all(&models).unwrap();
+    let model = models.join("street.json");
+    // The synthetic map's field (gt_class) comes first; the KITTI map (classification) would
+    // apply to files without it.
+    let o = tessera(&[
+        "train",
+        s(&scene),
+        "--class-map",
+        s(&synthetic),
+        "--class-map",
+        s(&kitti),
+        "--out",
+        s(&model),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let told = String::from_utf8_lossy(&o.stdout);
+    assert!(told.contains("trees on") && told.contains("70:"), "{told}");
+    let left: Vec<_> = std::fs::read_dir(&models)
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert_eq!(left, vec![std::ffi::OsString::from("street.json")]);
+    let m = tessera::label::model::Model::load(&model).unwrap();
+    assert_eq!(m.classes, vec![5, 6, 11, 65, 67, 69, 70]);
+    assert_eq!(m.ground, vec![false, false, true, true, true, false, false]);
+
+    // A run with the model: the classifier labels the zone's points, scored on the truth.
+    let out = d.path().join("out");
+    let set = format!("label.model={:?}", s(&model));
+    let o = tessera(&["run", s(&scene), "--out", s(&out), "--set", &set, "-q"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let summary: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("summary.json")).unwrap()).unwrap();
+    let text = summary.to_string();
+    assert!(text.contains("\"classifier_points\""), "{text}");
+    let o = tessera(&[
+        "eval", "labels", "--json", "--reference", s(&scene), "--result", s(&out),
+        "--ref-field", "gt_class", "--class-map", s(&synthetic),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let e: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert!(e["overall_accuracy"].as_f64().unwrap() > 0.9, "{e}");
+
+    // Errors. A class map whose field the files lack: exit 2, naming the file.
+    let bad_map = d.path().join("bad.toml");
+    std::fs::write(&bad_map, "field = \"nope\"\n[[class]]\ncode = 6\nreference = [6]\n").unwrap();
+    let m2 = d.path().join("m2.json");
+    let o = tessera(&["train", s(&scene), "--class-map", s(&bad_map), "--out", s(&m2)]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("scene_00000.laz") && err.contains("nope"), "{err}");
+    assert!(!m2.exists());
+    // A map that is not one.
+    std::fs::write(&bad_map, "[[class]]\ncode = 0\nreference = [1]\n").unwrap();
+    let o = tessera(&["train", s(&scene), "--class-map", s(&bad_map), "--out", s(&m2)]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("bad.toml"));
+    // No label stage to train.
+    let o = tessera(&[
+        "train", s(&scene), "--class-map", s(&synthetic), "--out", s(&m2),
+        "--set", "stages.run=[\"ground\",\"stats\"]",
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("label"));
+    assert!(!m2.exists());
+    // A damaged model: the run refuses before writing anything.
+    let broken = d.path().join("broken.json");
+    let text = std::fs::read_to_string(&model).unwrap();
+    std::fs::write(&broken, &text[..text.len() / 3]).unwrap();
+    let out2 = d.path().join("out2");
+    let set = format!("label.model={:?}", s(&broken));
+    let o = tessera(&["run", s(&scene), "--out", s(&out2), "--set", &set, "-q"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("broken.json"), "{err}");
+    assert!(!out2.exists() || std::fs::read_dir(&out2).unwrap().next().is_none());
+}
