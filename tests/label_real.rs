@@ -99,7 +99,8 @@ fn train_airborne(inputs: &[std::path::PathBuf], dir: &Path) -> std::path::PathB
 
 #[test]
 fn trained_model_building_f1_on_tiles_it_was_not_trained_on() {
-    let ahn = ["ahn_2386_9702.laz", "ahn_2397_9705.laz"].map(|n| common::data_file(&format!("ahn-amsterdam/{n}")));
+    let ahn = ["ahn_2386_9702.laz", "ahn_2397_9705.laz"]
+        .map(|n| common::data_file(&format!("ahn-amsterdam/{n}")));
     let ign = common::data_file("ign-lidarhd/870000_6618000.subset.50mx100m.las");
     let (Some(a0), Some(a1), Some(ign)) = (ahn[0].clone(), ahn[1].clone(), ign) else {
         return;
@@ -125,7 +126,11 @@ fn trained_model_building_f1_on_tiles_it_was_not_trained_on() {
             e.row(2).unwrap().f1
         );
         if b.f1 < 0.92 {
-            failures.push(format!("{}: building F1 {:.3} < 0.92", score_on.display(), b.f1));
+            failures.push(format!(
+                "{}: building F1 {:.3} < 0.92",
+                score_on.display(),
+                b.f1
+            ));
         }
     }
     let dir = tempfile::tempdir().unwrap();
@@ -138,7 +143,10 @@ fn trained_model_building_f1_on_tiles_it_was_not_trained_on() {
         w.f1, v.f1, v.precision, v.recall
     );
     if v.f1 < 0.90 {
-        failures.push(format!("IGN (void excluded): building F1 {:.3} < 0.90", v.f1));
+        failures.push(format!(
+            "IGN (void excluded): building F1 {:.3} < 0.90",
+            v.f1
+        ));
     }
     assert!(failures.is_empty(), "{failures:?}");
 }

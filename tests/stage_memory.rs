@@ -269,8 +269,7 @@ fn stages_stay_within_their_declared_memory() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let map = tessera::label::model::ClassMap::load(&root.join("config/synthetic.toml")).unwrap();
     let cfg = tessera::Config::load(None, &["label.train.trees=4".into()]).unwrap();
-    let (model, _) =
-        tessera::pipeline::train::train(&[d.join("street")], &[map], &cfg, d).unwrap();
+    let (model, _) = tessera::pipeline::train::train(&[d.join("street")], &[map], &cfg, d).unwrap();
     let model_path = d.join("model.json");
     model.save(&model_path).unwrap();
     let set = format!("label.model={:?}", model_path.display().to_string());
@@ -281,6 +280,9 @@ fn stages_stay_within_their_declared_memory() {
         &d.join("out_drive_model"),
         &["pipeline.memory_budget_mb=512", &set],
     );
-    failures.extend(check("simulated drive with a model (MCAP, 512 MiB)", &drive));
+    failures.extend(check(
+        "simulated drive with a model (MCAP, 512 MiB)",
+        &drive,
+    ));
     assert!(failures.is_empty(), "{failures:#?}");
 }

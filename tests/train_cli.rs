@@ -24,7 +24,15 @@ fn train_then_run_with_the_model_and_refuse_bad_inputs() {
     let kitti = root.join("config/semantickitti.toml");
     let d = tempfile::tempdir().unwrap();
     let scene = d.path().join("scene");
-    let o = tessera(&["synth", "--length-m", "20", "--seed", "4", "--out", s(&scene)]);
+    let o = tessera(&[
+        "synth",
+        "--length-m",
+        "20",
+        "--seed",
+        "4",
+        "--out",
+        s(&scene),
+    ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let models = d.path().join("models");
     std::fs::create_dir_all(&models).unwrap();
@@ -63,8 +71,17 @@ fn train_then_run_with_the_model_and_refuse_bad_inputs() {
     let text = summary.to_string();
     assert!(text.contains("\"classifier_points\""), "{text}");
     let o = tessera(&[
-        "eval", "labels", "--json", "--reference", s(&scene), "--result", s(&out),
-        "--ref-field", "gt_class", "--class-map", s(&synthetic),
+        "eval",
+        "labels",
+        "--json",
+        "--reference",
+        s(&scene),
+        "--result",
+        s(&out),
+        "--ref-field",
+        "gt_class",
+        "--class-map",
+        s(&synthetic),
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let e: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
@@ -72,22 +89,49 @@ fn train_then_run_with_the_model_and_refuse_bad_inputs() {
 
     // Errors. A class map whose field the files lack: exit 2, naming the file.
     let bad_map = d.path().join("bad.toml");
-    std::fs::write(&bad_map, "field = \"nope\"\n[[class]]\ncode = 6\nreference = [6]\n").unwrap();
+    std::fs::write(
+        &bad_map,
+        "field = \"nope\"\n[[class]]\ncode = 6\nreference = [6]\n",
+    )
+    .unwrap();
     let m2 = d.path().join("m2.json");
-    let o = tessera(&["train", s(&scene), "--class-map", s(&bad_map), "--out", s(&m2)]);
+    let o = tessera(&[
+        "train",
+        s(&scene),
+        "--class-map",
+        s(&bad_map),
+        "--out",
+        s(&m2),
+    ]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(2), "{err}");
-    assert!(err.contains("scene_00000.laz") && err.contains("nope"), "{err}");
+    assert!(
+        err.contains("scene_00000.laz") && err.contains("nope"),
+        "{err}"
+    );
     assert!(!m2.exists());
     // A map that is not one.
     std::fs::write(&bad_map, "[[class]]\ncode = 0\nreference = [1]\n").unwrap();
-    let o = tessera(&["train", s(&scene), "--class-map", s(&bad_map), "--out", s(&m2)]);
+    let o = tessera(&[
+        "train",
+        s(&scene),
+        "--class-map",
+        s(&bad_map),
+        "--out",
+        s(&m2),
+    ]);
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("bad.toml"));
     // No label stage to train.
     let o = tessera(&[
-        "train", s(&scene), "--class-map", s(&synthetic), "--out", s(&m2),
-        "--set", "stages.run=[\"ground\",\"stats\"]",
+        "train",
+        s(&scene),
+        "--class-map",
+        s(&synthetic),
+        "--out",
+        s(&m2),
+        "--set",
+        "stages.run=[\"ground\",\"stats\"]",
     ]);
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("label"));

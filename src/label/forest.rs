@@ -45,7 +45,7 @@ impl Default for ForestParams {
         ForestParams {
             trees: 24,
             max_depth: 18,
-            min_split: 6,
+            min_split: 30,
             mtry: 0,
             per_class: 6000,
             seed: 1,
