@@ -278,10 +278,10 @@ fn kitti_rules_against_a_model_trained_on_other_frames() {
                 let out = fold.join(format!("{f}.{m}"));
                 tessera::pipeline::run(&[d.join(f)], &out, &c, &|_, _| {}).unwrap();
                 let (w, g) = pairs(&d.join(f), &out, &map);
-                for part in 0..2 {
+                for (part, (want, got)) in pooled[m].iter_mut().enumerate() {
                     if part == 0 || f.starts_with("u700") {
-                        pooled[m][part].0.extend_from_slice(&w);
-                        pooled[m][part].1.extend_from_slice(&g);
+                        want.extend_from_slice(&w);
+                        got.extend_from_slice(&g);
                     }
                 }
             }
