@@ -548,7 +548,7 @@ fn group_shapes(ids: &[u32], hag: &[f64], local: &[[f64; 3]]) -> HashMap<u32, Se
         .collect()
 }
 
-/// The ground-level grid: per [`GROUND_CELL`] cell the lowest ground point, then sliding
+/// The ground-level grid: per [`GROUND_CELL`] cell (coarser on sparse data) the lowest ground point, then sliding
 /// minima over 2 m and 5 m and the maximum over 2 m (separable: rows, then columns). Kerbs
 /// and height steps show as the difference between a point and the lowest ground nearby.
 fn ground_levels(local: &[[f64; 3]], is_ground: &[bool]) -> (Vec<u32>, Vec<[f32; 3]>) {
@@ -560,13 +560,23 @@ fn ground_levels(local: &[[f64; 3]], is_ground: &[bool]) -> (Vec<u32>, Vec<[f32;
     if local.is_empty() {
         return (Vec::new(), Vec::new());
     }
-    let nx = (((hi[0] - lo[0]) / GROUND_CELL) as usize + 1).min(1 << 13);
-    let ny = (((hi[1] - lo[1]) / GROUND_CELL) as usize + 1).min(1 << 13);
+    // The grid is dense over the bounding box: on sparse data (under 2 points per m²) its
+    // cells double until there are at most two per point, so its memory stays within the
+    // per-point charge. The size then follows the density, not the tile's extent.
+    let mut size = GROUND_CELL;
+    let dims = |size: f64| {
+        let n = |d: f64| ((d / size) as usize + 1).min(1 << 13);
+        (n(hi[0] - lo[0]), n(hi[1] - lo[1]))
+    };
+    while dims(size).0 * dims(size).1 > 2 * local.len() && size < 8.0 {
+        size *= 2.0;
+    }
+    let (nx, ny) = dims(size);
     let cell: Vec<u32> = local
         .iter()
         .map(|p| {
-            let ix = (((p[0] - lo[0]) / GROUND_CELL) as usize).min(nx - 1);
-            let iy = (((p[1] - lo[1]) / GROUND_CELL) as usize).min(ny - 1);
+            let ix = (((p[0] - lo[0]) / size) as usize).min(nx - 1);
+            let iy = (((p[1] - lo[1]) / size) as usize).min(ny - 1);
             (iy * nx + ix) as u32
         })
         .collect();
@@ -602,8 +612,8 @@ fn ground_levels(local: &[[f64; 3]], is_ground: &[bool]) -> (Vec<u32>, Vec<[f32;
         }
         out
     };
-    let r2 = (2.0 / GROUND_CELL) as usize;
-    let r5 = (5.0 / GROUND_CELL) as usize;
+    let r2 = ((2.0 / size).round() as usize).max(1);
+    let r5 = ((5.0 / size).round() as usize).max(1);
     let (min2, min5, max2) = (
         slide(&zmin, r2, false),
         slide(&zmin, r5, false),
@@ -621,6 +631,29 @@ fn ground_levels(local: &[[f64; 3]], is_ground: &[bool]) -> (Vec<u32>, Vec<[f32;
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn ground_level_grid_coarsens_on_sparse_points() {
+        // Four points over 1 km²: 0.5 m cells would be 4 M; the grid stops at 8 m cells.
+        let local = [
+            [0.0, 0.0, 0.0],
+            [1000.0, 0.0, 1.0],
+            [0.0, 1000.0, 2.0],
+            [1000.0, 1000.0, 3.0],
+        ];
+        let (cell, level) = ground_levels(&local, &[true; 4]);
+        assert!(level.len() <= 126 * 126, "{}", level.len());
+        // Each corner is alone within 5 m: its own height is the lowest ground nearby.
+        for (i, p) in local.iter().enumerate() {
+            assert_eq!(level[cell[i] as usize][1], p[2] as f32);
+        }
+        // Dense points keep 0.5 m cells: 10 × 10 m at 100 points per m².
+        let dense: Vec<[f64; 3]> = (0..10_000)
+            .map(|k| [(k % 100) as f64 * 0.1, (k / 100) as f64 * 0.1, 0.0])
+            .collect();
+        let (_, level) = ground_levels(&dense, &vec![true; dense.len()]);
+        assert_eq!(level.len(), 20 * 20);
+    }
 
     #[test]
     fn names_match_rows_and_shapes_are_told_apart() {

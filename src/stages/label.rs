@@ -112,11 +112,11 @@ impl LabelSection {
         if t.trees == 0
             || t.trees > 10_000
             || t.max_depth > 64
-            || t.per_class == 0
-            || t.max_samples_per_class == 0
+            || !(1..=1_000_000).contains(&t.per_class)
+            || !(1..=10_000_000).contains(&t.max_samples_per_class)
         {
             return Err(Error::Config(
-                "label.train: trees 1..=10000, max_depth <= 64, per_class and max_samples_per_class >= 1".into(),
+                "label.train: trees 1..=10000, max_depth <= 64, per_class 1..=1000000, max_samples_per_class 1..=10000000".into(),
             ));
         }
         Ok(())
