@@ -242,6 +242,11 @@ pub struct SynthArgs {
     /// Firings per revolution of the simulated LiDAR (--mcap).
     #[arg(long, default_value_t = 1024)]
     pub columns: u32,
+    /// With --mcap: instead of the recording, write every K-th revolution as its own LAS file
+    /// (`scan_NNNNN.laz`: one scan in the world frame, truth attributes, no colour, as a bare
+    /// spinning LiDAR gives it), e.g. training data for `tessera train`.
+    #[arg(long, value_name = "K")]
+    pub scans_every: Option<u64>,
 }
 
 /// Arguments of `tessera samples`.

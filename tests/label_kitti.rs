@@ -197,6 +197,9 @@ fn pairs(
 /// half. Scores are pooled over both folds; road / sidewalk / terrain mapping accuracy on
 /// frame 700's halves.
 ///
+/// A third variant adds the cars and poles of 13 simulated single 64-beam scans to each
+/// fold's training set (`tessera synth --mcap --scans-every`, config/synthetic_objects.toml).
+///
 /// The issue's gates (F1 building ≥ 0.80, vegetation ≥ 0.85, vehicle ≥ 0.70, pole ≥ 0.50;
 /// frame 700 road ≥ 80 %, sidewalk ≥ 60 %, terrain ≥ 70 %) are printed as met or not; the
 /// assertions hold what was measured (2026-11-26) so that a change making the classifier
@@ -240,7 +243,26 @@ fn kitti_rules_against_a_model_trained_on_other_frames() {
     }
     let map =
         tessera::label::model::ClassMap::load(&root.join("config/semantickitti.toml")).unwrap();
+    let objects =
+        tessera::label::model::ClassMap::load(&root.join("config/synthetic_objects.toml")).unwrap();
     let cfg = tessera::Config::load(Some(&root.join("config/scans_nocolour.toml")), &[]).unwrap();
+    // Simulated single scans of a 64-beam scanner on a 120 m synthetic street (seed 5, every
+    // 12th revolution: 12 scans), what `tessera synth --mcap --rings 64 --columns 2048
+    // --length-m 120 --seed 5 --scans-every 12` writes; their cars and poles only are added
+    // to each fold's training set (config/synthetic_objects.toml).
+    let scans = d.join("synthetic_scans");
+    let lidar = tessera::synth::lidar::LidarParams {
+        scene: tessera::synth::SceneParams {
+            seed: 5,
+            length_m: 120.0,
+            ..Default::default()
+        },
+        rings: 64,
+        columns: 2048,
+        ..Default::default()
+    };
+    let st = tessera::synth::write_scans(&lidar, &scans, 12).unwrap();
+    assert_eq!(st.files, 13);
     let folds = [
         (
             ["k01_f0.las", "u700_west.las"],
@@ -251,8 +273,9 @@ fn kitti_rules_against_a_model_trained_on_other_frames() {
             ["k01_f0.las", "u700_west.las"],
         ),
     ];
-    // [rules, model] × [all scored points, frame 700 only]: (reference, predicted).
-    let mut pooled: [[(Vec<u8>, Vec<u8>); 2]; 2] = Default::default();
+    // [rules, model, model with synthetic objects] × [all scored points, frame 700 only]:
+    // (reference, predicted).
+    let mut pooled: [[(Vec<u8>, Vec<u8>); 2]; 3] = Default::default();
     for (k, (train, score)) in folds.iter().enumerate() {
         let fold = d.join(format!("fold{k}"));
         std::fs::create_dir_all(&fold).unwrap();
@@ -262,16 +285,22 @@ fn kitti_rules_against_a_model_trained_on_other_frames() {
                 .unwrap();
         let model_path = fold.join("model.json");
         model.save(&model_path).unwrap();
+        let mut with_scans = inputs.clone();
+        with_scans.push(scans.clone());
+        let (model, _) = tessera::pipeline::train::train(
+            &with_scans,
+            &[objects.clone(), map.clone()],
+            &cfg,
+            &fold,
+        )
+        .unwrap();
+        let synthetic_path = fold.join("model_synthetic.json");
+        model.save(&synthetic_path).unwrap();
+        let set = |p: &std::path::Path| vec![format!("label.model={:?}", p.display().to_string())];
         for f in score {
-            for (m, set) in [
-                vec![],
-                vec![format!(
-                    "label.model={:?}",
-                    model_path.display().to_string()
-                )],
-            ]
-            .iter()
-            .enumerate()
+            for (m, set) in [vec![], set(&model_path), set(&synthetic_path)]
+                .iter()
+                .enumerate()
             {
                 let c = tessera::Config::load(Some(&root.join("config/scans_nocolour.toml")), set)
                     .unwrap();
@@ -300,8 +329,13 @@ fn kitti_rules_against_a_model_trained_on_other_frames() {
         (pole, 0.50),
     ];
     let map_gates = [(road, 0.80), (sidewalk, 0.60), (terrain, 0.70)];
-    let mut measured = [[0.0f64; 7]; 2];
-    for (m, name) in ["rules", "trained model"].iter().enumerate() {
+    let mut measured = [[0.0f64; 7]; 3];
+    let names = [
+        "rules",
+        "trained model",
+        "trained model + synthetic objects",
+    ];
+    for (m, name) in names.iter().enumerate() {
         let (all, urban) = (score(m, 0), score(m, 1));
         println!("SemanticKITTI, {name}, all scored points:\n{}", all.table());
         println!("frame 700 halves, {name}:\n{}", urban.table());
@@ -324,11 +358,30 @@ fn kitti_rules_against_a_model_trained_on_other_frames() {
             );
         }
     }
-    let [rules, model] = measured;
+    let [rules, model, synthetic] = measured;
     assert!(
         model[0] > rules[0] && model[1] > rules[1],
         "rules {rules:?}, model {model:?}"
     );
+    // Simulated cars and poles are what the real training halves lack (a handful of cars):
+    // measured vehicle F1 0.400 without them, 0.709 with them (the rules: 0.687).
+    assert!(
+        synthetic[2] > model[2] && synthetic[2] > rules[2],
+        "vehicle F1: rules {:.3}, model {:.3}, with synthetic objects {:.3}",
+        rules[2],
+        model[2],
+        synthetic[2]
+    );
+    // Measured with synthetic objects: F1 building 0.663, vegetation 0.813, vehicle 0.709,
+    // pole 0.753; road 77.5 %, sidewalk 22.1 %, terrain 50.5 %.
+    let synthetic_floors = [0.62, 0.77, 0.65, 0.70, 0.74, 0.17, 0.46];
+    for (j, f) in synthetic_floors.iter().enumerate() {
+        assert!(
+            synthetic[j] >= *f,
+            "model with synthetic objects, measure {j}: {:.3} < {f}",
+            synthetic[j]
+        );
+    }
     // Floors a little under the measured values (see the README's issue-25 table).
     // Measured (default forest): F1 building 0.689, vegetation 0.820, vehicle 0.400, pole
     // 0.707; frame 700 mapping accuracy road 75.9 %, sidewalk 26.3 %, terrain 52.0 %. The

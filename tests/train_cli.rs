@@ -17,6 +17,16 @@ fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
+fn common_las_files(dir: &Path) -> Vec<std::path::PathBuf> {
+    let mut v: Vec<_> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "laz"))
+        .collect();
+    v.sort();
+    v
+}
+
 #[test]
 fn train_then_run_with_the_model_and_refuse_bad_inputs() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
@@ -86,6 +96,32 @@ fn train_then_run_with_the_model_and_refuse_bad_inputs() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let e: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert!(e["overall_accuracy"].as_f64().unwrap() > 0.9, "{e}");
+
+    // Simulated single scans for training: LAS format 6 (no colour) with the truth.
+    let scans = d.path().join("scans");
+    let o = tessera(&[
+        "synth",
+        "--mcap",
+        "--rings",
+        "16",
+        "--columns",
+        "256",
+        "--length-m",
+        "3",
+        "--scans-every",
+        "10",
+        "--out",
+        s(&scans),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let files: Vec<_> = common_las_files(&scans);
+    assert_eq!(files.len(), 1, "{files:?}");
+    let r = las::Reader::from_path(&files[0]).unwrap();
+    assert_eq!(r.header().point_format().to_u8().unwrap(), 6);
+    let truth = tessera::eval::load_fields(&files[0], 0.001, &["gt_class"]).unwrap();
+    assert!(truth.values[0].contains(&11), "road returns expected");
+    let o = tessera(&["synth", "--scans-every", "10", "--out", s(&scans)]);
+    assert_eq!(o.status.code(), Some(2));
 
     // Errors. A class map whose field the files lack: exit 2, naming the file.
     let bad_map = d.path().join("bad.toml");

@@ -15,6 +15,16 @@ pub fn synth(a: SynthArgs) -> anyhow::Result<()> {
             columns: a.columns,
             ..Default::default()
         };
+        if let Some(k) = a.scans_every {
+            let s = tessera::synth::write_scans(&p, &a.out, k)?;
+            tracing::info!(
+                "wrote {} single scans ({} points) to {}",
+                s.files,
+                s.points,
+                a.out.display()
+            );
+            return Ok(());
+        }
         let s = tessera::synth::drive::write_drive(&p, &a.out)?;
         tracing::info!(
             "wrote {} clouds ({} returns of {} beams) to {}",
@@ -24,6 +34,9 @@ pub fn synth(a: SynthArgs) -> anyhow::Result<()> {
             a.out.join("drive.mcap").display()
         );
         return Ok(());
+    }
+    if a.scans_every.is_some() {
+        return Err(tessera::Error::Config("synth: --scans-every needs --mcap".into()).into());
     }
     if a.scene == SceneKind::Buildings {
         let mut p = tessera::synth::buildings::BuildingParams {

@@ -50,8 +50,13 @@ pub fn truth_vlr() -> Vlr {
 }
 
 fn header() -> Result<las::Header> {
+    header_of(7)
+}
+
+/// The scenes' header with point format `format` (7 with colour, 6 without).
+fn header_of(format: u8) -> Result<las::Header> {
     let mut b = Builder::from((1, 4));
-    let mut f = Format::new(7).map_err(|e| Error::Internal(e.to_string()))?;
+    let mut f = Format::new(format).map_err(|e| Error::Internal(e.to_string()))?;
     f.extra_bytes = 5;
     f.is_compressed = true;
     b.point_format = f;
@@ -134,11 +139,21 @@ pub fn write_scene(params: &SceneParams, dir: &Path, file_length_m: f64) -> Resu
 
 /// Writes `pts` to `path` (LAZ, atomically: temp file, then rename).
 fn write_points(path: &Path, header: &las::Header, pts: &[SynthPoint]) -> Result<()> {
+    write_points_with(path, header, pts, |q| q)
+}
+
+/// [`write_points`], each point passed through `adapt` (e.g. to drop colour).
+fn write_points_with(
+    path: &Path,
+    header: &las::Header,
+    pts: &[SynthPoint],
+    adapt: impl Fn(Point) -> Point,
+) -> Result<()> {
     let tmp = tmp_path(path);
     let res = (|| -> Result<()> {
         let mut w = LasFile::create(&tmp, header.clone(), Default::default())?;
         for p in pts {
-            w.write_point(to_point(p))?;
+            w.write_point(adapt(to_point(p)))?;
         }
         w.finish()
     })();
@@ -147,6 +162,61 @@ fn write_points(path: &Path, header: &las::Header, pts: &[SynthPoint]) -> Result
         return Err(e);
     }
     commit_tmp(&tmp, path)
+}
+
+/// Writes every `every`-th revolution of the simulated drive `p` as its own file
+/// `scan_NNNNN.laz` (NNNNN: the revolution): one scan in the world frame, as a spinning LiDAR
+/// without a camera records it (format 6, no colour), with the truth attributes, plus
+/// `segments.tsv`. Single scans keep the scanner's ring pattern, range fall-off and shadows,
+/// which an accumulated drive fills in.
+pub fn write_scans(p: &lidar::LidarParams, dir: &Path, every: u64) -> Result<SynthStats> {
+    p.validate()
+        .map_err(|e| Error::Config(format!("synth --mcap: {e}")))?;
+    if every == 0 {
+        return Err(Error::Config(
+            "synth: --scans-every must be at least 1".into(),
+        ));
+    }
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    let header = header_of(6)?;
+    let revs: Vec<u64> = (0..p.revolutions()).step_by(every as usize).collect();
+    let counts: Vec<u64> = revs
+        .par_iter()
+        .map(|&k| {
+            let rev = lidar::simulate_revolution(p, k);
+            let t = drive::DRIVE_T0_S as f64 + rev.start_ns as f64 * 1e-9;
+            let pts: Vec<SynthPoint> = rev
+                .beams
+                .iter()
+                .flatten()
+                .map(|r| SynthPoint {
+                    x: r.world[0],
+                    y: r.world[1],
+                    z: r.world[2],
+                    rgb: [0; 3],
+                    intensity: r.intensity.clamp(0.0, 65535.0) as u16,
+                    gps_time: t,
+                    class: r.class,
+                    segment: r.segment,
+                })
+                .collect();
+            write_points_with(
+                &dir.join(format!("scan_{k:05}.laz")),
+                &header,
+                &pts,
+                |mut q| {
+                    q.color = None;
+                    q
+                },
+            )?;
+            Ok(pts.len() as u64)
+        })
+        .collect::<Result<_>>()?;
+    write_segments_tsv(dir, &segments(&p.scene))?;
+    Ok(SynthStats {
+        points: counts.iter().sum(),
+        files: revs.len(),
+    })
 }
 
 /// Writes the reference segments as `segments.tsv` (world coordinates).
