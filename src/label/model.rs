@@ -195,11 +195,9 @@ struct Row {
     x: Vec<f32>,
 }
 
+/// A well-mixed hash of a point id: the first output of SplitMix64 seeded with it.
 fn mix(id: u64) -> u64 {
-    let mut z = id.wrapping_add(0x9E37_79B9_7F4A_7C15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
+    crate::rng::Rng(id).next()
 }
 
 /// Samples per class ready for [`Forest::train`].
