@@ -82,11 +82,13 @@ impl Neighbours {
         self.len() == 0
     }
 
-    /// Fills every row in parallel: `query(i, cand)` leaves point `i`'s candidates in `cand`
-    /// (any order, at least its `k` nearest), and the row keeps the `k` nearest by (distance,
-    /// index). Rows are processed in blocks of consecutive points (the callers' points are in
-    /// a spatially coherent order).
-    fn fill(n: usize, k: usize, query: impl Fn(usize, &mut Vec<(f32, u32)>) + Sync) -> Self {
+    /// Fills every row in parallel: `query(i, prev, cand)` leaves point `i`'s candidates in
+    /// `cand` (any order, at least its `k` nearest), and the row keeps the `k` nearest by
+    /// (distance, index). Rows are processed in blocks of consecutive points (the callers'
+    /// points are in a spatially coherent order); `prev` is the `k`-th squared distance of row
+    /// `i − 1` when that row was just computed and is full, which a query may use to bound its
+    /// own search.
+    fn fill(n: usize, k: usize, query: impl Fn(usize, Option<f32>, &mut Vec<u64>) + Sync) -> Self {
         let mut nb = Neighbours::rows(n, k);
         if k == 0 {
             return nb;
@@ -98,13 +100,15 @@ impl Neighbours {
             .zip(nb.cnt.par_chunks_mut(BLOCK))
             .enumerate()
             .for_each_init(Vec::new, |cand, (b, ((idx, dist2), cnt))| {
+                let mut prev = None;
                 for (o, c) in cnt.iter_mut().enumerate() {
                     cand.clear();
-                    query(b * BLOCK + o, cand);
+                    query(b * BLOCK + o, prev, cand);
                     finish(cand, k);
-                    for (t, &(d, j)) in cand.iter().enumerate() {
-                        idx[o * k + t] = j;
-                        dist2[o * k + t] = d;
+                    prev = (cand.len() == k).then(|| dist_of(cand[k - 1]));
+                    for (t, &c) in cand.iter().enumerate() {
+                        idx[o * k + t] = c as u32;
+                        dist2[o * k + t] = dist_of(c);
                     }
                     *c = cand.len() as u32;
                 }
@@ -143,14 +147,27 @@ impl Neighbours {
     }
 }
 
+/// A candidate packed in one integer: the bits of its f32 squared distance (which order like
+/// the values for non-negative floats) above its point index, so that (distance, index) order
+/// is integer order — selection and sorting compare plain `u64`s.
+#[inline]
+fn packed(d2: f32, j: u32) -> u64 {
+    ((d2.to_bits() as u64) << 32) | j as u64
+}
+
+/// The squared distance of a [`packed`] candidate.
+#[inline]
+fn dist_of(c: u64) -> f32 {
+    f32::from_bits((c >> 32) as u32)
+}
+
 /// Sorts by (distance, index) and keeps the first `k`: the canonical neighbour list.
-fn finish(l: &mut Vec<(f32, u32)>, k: usize) {
-    let by = |a: &(f32, u32), b: &(f32, u32)| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1));
+fn finish(l: &mut Vec<u64>, k: usize) {
     if k > 0 && l.len() > k {
-        l.select_nth_unstable_by(k - 1, by);
+        l.select_nth_unstable(k - 1);
     }
     l.truncate(k);
-    l.sort_unstable_by(by);
+    l.sort_unstable();
 }
 
 /// The `k` nearest neighbours of every point within `radius`, with a kd-tree.
@@ -162,13 +179,13 @@ pub fn knn_kdtree(pts: &[[f64; 3]], k: usize, radius: f64) -> Neighbours {
     // One extra: the query point itself comes back too.
     let want = NonZeroUsize::new(k + 1).unwrap_or(NonZeroUsize::MIN);
     let r2 = radius * radius;
-    Neighbours::fill(pts.len(), k, |i, cand| {
+    Neighbours::fill(pts.len(), k, |i, _, cand| {
         let found = tree.nearest_n_within::<SquaredEuclidean>(&pts[i], r2, want, true);
         cand.extend(
             found
                 .into_iter()
                 .filter(|nn| nn.item as usize != i)
-                .map(|nn| (nn.distance as f32, nn.item)),
+                .map(|nn| packed(nn.distance as f32, nn.item)),
         );
     })
 }
@@ -188,7 +205,7 @@ pub fn knn_surface(pts: &[[f64; 3]], k: usize, radius: f64) -> Neighbours {
     let tree: ImmutableKdTree<f64, u32, 2, 32> = ImmutableKdTree::new_from_slice(&xy);
     let want = NonZeroUsize::new(2 * k + 1).unwrap_or(NonZeroUsize::MIN);
     let r2 = radius * radius;
-    Neighbours::fill(pts.len(), k, |i, cand| {
+    Neighbours::fill(pts.len(), k, |i, _, cand| {
         let p = &pts[i];
         let found = tree.nearest_n::<SquaredEuclidean>(&xy[i], want);
         cand.extend(
@@ -198,7 +215,7 @@ pub fn knn_surface(pts: &[[f64; 3]], k: usize, radius: f64) -> Neighbours {
                 .filter_map(|nn| {
                     let q = &pts[nn.item as usize];
                     let d2 = (q[0] - p[0]).powi(2) + (q[1] - p[1]).powi(2) + (q[2] - p[2]).powi(2);
-                    (d2 <= r2).then_some((d2 as f32, nn.item))
+                    (d2 <= r2).then_some(packed(d2 as f32, nn.item))
                 }),
         );
     })
@@ -332,8 +349,7 @@ pub fn knn_voxel(pts: &[[f64; 3]], k: usize, radius: f64) -> Neighbours {
     }
     let r2 = radius * radius;
     let max_l = (radius * inv).ceil() as i64 + 1;
-    let by = |a: &(f32, u32), b: &(f32, u32)| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1));
-    Neighbours::fill(pts.len(), k, |i, cand| {
+    Neighbours::fill(pts.len(), k, |i, _, cand| {
         let p = &pts[i];
         let c = cell_of(p);
         let mut l = 0i64;
@@ -360,7 +376,7 @@ pub fn knn_voxel(pts: &[[f64; 3]], k: usize, radius: f64) -> Neighbours {
                                 + (q[1] - p[1]).powi(2)
                                 + (q[2] - p[2]).powi(2);
                             if d2 <= r2 && j as usize != i {
-                                cand.push((d2 as f32, j));
+                                cand.push(packed(d2 as f32, j));
                             }
                         }
                     }
@@ -371,10 +387,10 @@ pub fn knn_voxel(pts: &[[f64; 3]], k: usize, radius: f64) -> Neighbours {
                 break;
             }
             if cand.len() >= k && k > 0 {
-                cand.select_nth_unstable_by(k - 1, by);
+                cand.select_nth_unstable(k - 1);
                 cand.truncate(k);
                 // Strict, in f32: points outside the cube round to at least covered².
-                if cand[k - 1].0 < (covered * covered) as f32 {
+                if dist_of(cand[k - 1]) < (covered * covered) as f32 {
                     break;
                 }
             }
@@ -383,20 +399,19 @@ pub fn knn_voxel(pts: &[[f64; 3]], k: usize, radius: f64) -> Neighbours {
     })
 }
 
-/// Keeps `best` the `k` smallest (distance², index) offered so far, ascending.
+/// Keeps `best` the `k` smallest [`packed`] candidates offered so far, ascending.
 #[inline]
-fn keep_nearest(best: &mut Vec<(f32, u32)>, k: usize, c: (f32, u32)) {
-    let less = |a: &(f32, u32), b: &(f32, u32)| a.0 < b.0 || (a.0 == b.0 && a.1 < b.1);
+fn keep_nearest(best: &mut Vec<u64>, k: usize, c: u64) {
     if best.len() == k {
         match best.last() {
-            Some(w) if less(&c, w) => {
+            Some(&w) if c < w => {
                 best.pop();
             }
             _ => return,
         }
     }
     let mut pos = best.len();
-    while pos > 0 && less(&c, &best[pos - 1]) {
+    while pos > 0 && c < best[pos - 1] {
         pos -= 1;
     }
     best.insert(pos, c);
@@ -451,6 +466,13 @@ pub fn knn_grid2d(pts: &[[f64; 3]], k: usize, radius: f64) -> Neighbours {
         .min(radius)
         .max(ext / ((1u64 << 20) as f64))
         .max(1e-9);
+    let nx = ((hi[0] - lo[0]) / cw) as usize + 1;
+    let ny = ((hi[1] - lo[1]) / cw) as usize + 1;
+    // A dense grid when its cells are few against the points (street tiles: ~0.3 cells a
+    // point); sparse, far-flung points keep the hashed cells.
+    if nx.saturating_mul(ny) <= 4 * n + 65_536 {
+        return grid2d_dense(pts, k, radius, lo, cw, [nx, ny]);
+    }
     let inv = 1.0 / cw;
     let cell_of = |p: &[f64; 3]| -> [i64; 2] {
         [((p[0] - lo[0]) * inv) as i64, ((p[1] - lo[1]) * inv) as i64]
@@ -481,7 +503,7 @@ pub fn knn_grid2d(pts: &[[f64; 3]], k: usize, radius: f64) -> Neighbours {
     let max_l = (radius * inv).ceil() as i64 + 1;
     // Rows are computed in cell order (row `q` for the point at sorted position `q`), then
     // moved to point order in place.
-    let mut nb = Neighbours::fill(n, k, |q, cand| {
+    let mut nb = Neighbours::fill(n, k, |q, _, cand| {
         let p = &sorted[q];
         let me = order[q];
         let cc = cell_of(p);
@@ -500,7 +522,7 @@ pub fn knn_grid2d(pts: &[[f64; 3]], k: usize, radius: f64) -> Neighbours {
                             let j = order[a as usize + t];
                             if d2 <= r2 && j != me {
                                 // Ranked by the f32 distance, as every search here.
-                                keep_nearest(cand, k, (d2 as f32, j));
+                                keep_nearest(cand, k, packed(d2 as f32, j));
                             }
                         }
                     }
@@ -512,13 +534,163 @@ pub fn knn_grid2d(pts: &[[f64; 3]], k: usize, radius: f64) -> Neighbours {
                 break;
             }
             // Strict, in f32: points outside the block round to at least covered².
-            if cand.len() == k && cand[k - 1].0 < (covered * covered) as f32 {
+            if cand.len() == k && dist_of(cand[k - 1]) < (covered * covered) as f32 {
                 break;
             }
             l += 1;
         }
     });
     drop((sorted, table));
+    nb.unpermute(&order);
+    nb
+}
+
+/// [`knn_grid2d`] on a dense grid of `dims` cells of width `cw` from `lo`: points are
+/// counting-sorted into row-major cells, so the 3 × 3 block around a query is three contiguous
+/// runs of the sorted array (no hashing). A query first takes that block and stops when its
+/// `k`-th candidate is nearer than the block's edge (sides at the grid's border count as
+/// infinitely far: nothing lies beyond them) or the block covers `radius`; the rare rest
+/// widens ring by ring as the hashed search does.
+fn grid2d_dense(
+    pts: &[[f64; 3]],
+    k: usize,
+    radius: f64,
+    lo: [f64; 2],
+    cw: f64,
+    dims: [usize; 2],
+) -> Neighbours {
+    let n = pts.len();
+    let [nx, ny] = dims;
+    let inv = 1.0 / cw;
+    let cell_xy = |p: &[f64; 3]| -> [usize; 2] {
+        [
+            (((p[0] - lo[0]) * inv) as usize).min(nx - 1),
+            (((p[1] - lo[1]) * inv) as usize).min(ny - 1),
+        ]
+    };
+    // Counting sort by cell; ties keep point order.
+    let mut start = vec![0u32; nx * ny + 1];
+    let cell: Vec<u32> = pts
+        .iter()
+        .map(|p| {
+            let [cx, cy] = cell_xy(p);
+            (cy * nx + cx) as u32
+        })
+        .collect();
+    for &c in &cell {
+        start[c as usize + 1] += 1;
+    }
+    for c in 0..nx * ny {
+        start[c + 1] += start[c];
+    }
+    let mut order = vec![0u32; n];
+    {
+        let mut next = start.clone();
+        for (i, &c) in cell.iter().enumerate() {
+            order[next[c as usize] as usize] = i as u32;
+            next[c as usize] += 1;
+        }
+    }
+    drop(cell);
+    let sorted: Vec<[f64; 3]> = order.iter().map(|&i| pts[i as usize]).collect();
+    let r2 = radius * radius;
+    let max_l = (radius * inv).ceil() as i64 + 1;
+    // Scans cells [x0, x1] of row y, offering every point within `b2` (squared) but the query.
+    let scan =
+        |cand: &mut Vec<u64>, p: &[f64; 3], me: u32, b2: f64, y: usize, x0: usize, x1: usize| {
+            let (a, e) = (start[y * nx + x0] as usize, start[y * nx + x1 + 1] as usize);
+            for (qp, &j) in sorted[a..e].iter().zip(&order[a..e]) {
+                let d2 = (qp[0] - p[0]).powi(2) + (qp[1] - p[1]).powi(2) + (qp[2] - p[2]).powi(2);
+                if d2 <= b2 && j != me {
+                    cand.push(packed(d2 as f32, j));
+                }
+            }
+        };
+    let mut nb = Neighbours::fill(n, k, |q, prev, cand| {
+        let p = &sorted[q];
+        let me = order[q];
+        // The previous point's k neighbours (within `prev` of it) all lie within
+        // √prev + |p − p'| of this point (the previous point itself among them, standing in
+        // for this one if it was on that list): nothing farther can be among this point's k
+        // nearest, so the block's scan keeps only what lies within that bound (a hair more,
+        // for the f32 rounding of `prev`). Exact: the block result is still checked below.
+        let b2 = match prev {
+            Some(d) if q > 0 => {
+                let pp = &sorted[q - 1];
+                let step =
+                    ((pp[0] - p[0]).powi(2) + (pp[1] - p[1]).powi(2) + (pp[2] - p[2]).powi(2))
+                        .sqrt();
+                ((d as f64).sqrt() + step).powi(2) * (1.0 + 1e-6)
+            }
+            _ => r2,
+        }
+        .min(r2);
+        let [cx, cy] = cell_xy(p);
+        let (x0, x1) = (cx.saturating_sub(1), (cx + 1).min(nx - 1));
+        for y in cy.saturating_sub(1)..=(cy + 1).min(ny - 1) {
+            scan(cand, p, me, b2, y, x0, x1);
+        }
+        // Distance from the query to the nearest side of the block that has cells beyond it
+        // (a hair less, for rounding).
+        let u = [(p[0] - lo[0]) * inv, (p[1] - lo[1]) * inv];
+        let mut reach = f64::INFINITY;
+        for (d, (c, m)) in [(cx, nx), (cy, ny)].into_iter().enumerate() {
+            if c >= 2 {
+                reach = reach.min(u[d] - (c - 1) as f64);
+            }
+            if c + 2 < m {
+                reach = reach.min((c + 2) as f64 - u[d]);
+            }
+        }
+        let reach = reach * cw * (1.0 - 1e-9);
+        if reach * reach >= r2 {
+            return;
+        }
+        if cand.len() >= k {
+            cand.select_nth_unstable(k - 1);
+            cand.truncate(k);
+            if dist_of(cand[k - 1]) < (reach * reach) as f32 {
+                return;
+            }
+        }
+        // Rare: widen ring by ring from scratch.
+        cand.clear();
+        let (cx, cy) = (cx as i64, cy as i64);
+        let mut l = 0i64;
+        loop {
+            for dy in -l..=l {
+                let y = cy + dy;
+                if y < 0 || y >= ny as i64 {
+                    continue;
+                }
+                if dy.abs() == l {
+                    let (x0, x1) = ((cx - l).max(0), (cx + l).min(nx as i64 - 1));
+                    if x0 <= x1 {
+                        scan(cand, p, me, r2, y as usize, x0 as usize, x1 as usize);
+                    }
+                } else {
+                    for x in [cx - l, cx + l] {
+                        if x >= 0 && x < nx as i64 {
+                            scan(cand, p, me, r2, y as usize, x as usize, x as usize);
+                        }
+                    }
+                }
+            }
+            let covered = l as f64 * cw;
+            if covered >= radius || l >= max_l {
+                break;
+            }
+            if cand.len() >= k {
+                cand.select_nth_unstable(k - 1);
+                cand.truncate(k);
+                if dist_of(cand[k - 1]) < (covered * covered) as f32 {
+                    break;
+                }
+            }
+            l += 1;
+        }
+    });
+    drop(sorted);
     nb.unpermute(&order);
     nb
 }
@@ -567,7 +739,7 @@ mod tests {
         // keep an arbitrary one of equidistant points at the k-th place, so it is not one.)
         let brute = |i: usize, k: usize, r: f64| -> Vec<u32> {
             let p = pts[i];
-            let mut l: Vec<(f32, u32)> = pts
+            let mut l: Vec<u64> = pts
                 .iter()
                 .enumerate()
                 .filter(|&(j, _)| j != i)
@@ -576,10 +748,10 @@ mod tests {
                     (d2, j as u32)
                 })
                 .filter(|&(d2, _)| d2 <= r * r)
-                .map(|(d2, j)| (d2 as f32, j))
+                .map(|(d2, j)| packed(d2 as f32, j))
                 .collect();
             finish(&mut l, k);
-            l.into_iter().map(|(_, j)| j).collect()
+            l.into_iter().map(|c| c as u32).collect()
         };
         for (k, r) in [(12, 0.35), (20, 0.2), (5, 1.0)] {
             let b = knn_grid2d(&pts, k, r);
