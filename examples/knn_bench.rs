@@ -15,6 +15,18 @@ fn main() {
         })
         .collect();
     println!("{} ground points, k {k}, r {r}", pts.len());
+    if std::env::var("ONLY_VOXEL").is_ok() {
+        for _ in 0..5 {
+            let t = Instant::now();
+            let b = knn_voxel(&pts, k, r);
+            println!(
+                "voxel {:.3} s ({} lists)",
+                t.elapsed().as_secs_f64(),
+                b.len()
+            );
+        }
+        return;
+    }
     if std::env::var("ONLY_GRID").is_ok() {
         for _ in 0..5 {
             let t = Instant::now();

@@ -87,8 +87,12 @@ impl Neighbours {
     /// (distance, index). Rows are processed in blocks of consecutive points (the callers'
     /// points are in a spatially coherent order); `prev` is the `k`-th squared distance of row
     /// `i − 1` when that row was just computed and is full, which a query may use to bound its
-    /// own search.
-    fn fill(n: usize, k: usize, query: impl Fn(usize, Option<f32>, &mut Vec<u64>) + Sync) -> Self {
+    /// own search. `S` is a query's scratch, one per thread, kept from one row to the next.
+    fn fill<S: Default + Send>(
+        n: usize,
+        k: usize,
+        query: impl Fn(usize, Option<f32>, &mut Vec<u64>, &mut S) + Sync,
+    ) -> Self {
         let mut nb = Neighbours::rows(n, k);
         if k == 0 {
             return nb;
@@ -99,20 +103,23 @@ impl Neighbours {
             .zip(nb.dist2.par_chunks_mut(BLOCK * k))
             .zip(nb.cnt.par_chunks_mut(BLOCK))
             .enumerate()
-            .for_each_init(Vec::new, |cand, (b, ((idx, dist2), cnt))| {
-                let mut prev = None;
-                for (o, c) in cnt.iter_mut().enumerate() {
-                    cand.clear();
-                    query(b * BLOCK + o, prev, cand);
-                    finish(cand, k);
-                    prev = (cand.len() == k).then(|| dist_of(cand[k - 1]));
-                    for (t, &c) in cand.iter().enumerate() {
-                        idx[o * k + t] = c as u32;
-                        dist2[o * k + t] = dist_of(c);
+            .for_each_init(
+                <(Vec<u64>, S)>::default,
+                |(cand, scratch), (b, ((idx, dist2), cnt))| {
+                    let mut prev = None;
+                    for (o, c) in cnt.iter_mut().enumerate() {
+                        cand.clear();
+                        query(b * BLOCK + o, prev, cand, scratch);
+                        finish(cand, k);
+                        prev = (cand.len() == k).then(|| dist_of(cand[k - 1]));
+                        for (t, &c) in cand.iter().enumerate() {
+                            idx[o * k + t] = c as u32;
+                            dist2[o * k + t] = dist_of(c);
+                        }
+                        *c = cand.len() as u32;
                     }
-                    *c = cand.len() as u32;
-                }
-            });
+                },
+            );
         nb
     }
 
@@ -179,7 +186,7 @@ pub fn knn_kdtree(pts: &[[f64; 3]], k: usize, radius: f64) -> Neighbours {
     // One extra: the query point itself comes back too.
     let want = NonZeroUsize::new(k + 1).unwrap_or(NonZeroUsize::MIN);
     let r2 = radius * radius;
-    Neighbours::fill(pts.len(), k, |i, _, cand| {
+    Neighbours::fill(pts.len(), k, |i, _, cand, _: &mut ()| {
         let found = tree.nearest_n_within::<SquaredEuclidean>(&pts[i], r2, want, true);
         cand.extend(
             found
@@ -205,7 +212,7 @@ pub fn knn_surface(pts: &[[f64; 3]], k: usize, radius: f64) -> Neighbours {
     let tree: ImmutableKdTree<f64, u32, 2, 32> = ImmutableKdTree::new_from_slice(&xy);
     let want = NonZeroUsize::new(2 * k + 1).unwrap_or(NonZeroUsize::MIN);
     let r2 = radius * radius;
-    Neighbours::fill(pts.len(), k, |i, _, cand| {
+    Neighbours::fill(pts.len(), k, |i, _, cand, _: &mut ()| {
         let p = &pts[i];
         let found = tree.nearest_n::<SquaredEuclidean>(&xy[i], want);
         cand.extend(
@@ -349,11 +356,86 @@ pub fn knn_voxel(pts: &[[f64; 3]], k: usize, radius: f64) -> Neighbours {
     }
     let r2 = radius * radius;
     let max_l = (radius * inv).ceil() as i64 + 1;
-    Neighbours::fill(pts.len(), k, |i, _, cand| {
+    // Highest cell coordinate per axis: no cell lies beyond it.
+    let top: [i64; 3] =
+        std::array::from_fn(|d| pts.iter().map(|p| cell_of(p)[d]).max().unwrap_or(0));
+    // Offers every point of cell `key` within `b2` (squared) of `p` but point `me`.
+    let offer = |cand: &mut Vec<u64>, (a, b): (u32, u32), p: &[f64; 3], me: usize, b2: f64| {
+        for (q, &j) in sorted[a as usize..b as usize]
+            .iter()
+            .zip(&order[a as usize..b as usize])
+        {
+            let d2 = (q[0] - p[0]).powi(2) + (q[1] - p[1]).powi(2) + (q[2] - p[2]).powi(2);
+            if d2 <= b2 && j as usize != me {
+                cand.push(packed(d2 as f32, j));
+            }
+        }
+    };
+    Neighbours::fill(pts.len(), k, |i, prev, cand, cube: &mut CubeCache| {
         let p = &pts[i];
         let c = cell_of(p);
-        let mut l = 0i64;
+        // As in the 2-D grid: the previous point's k-th distance plus the step between the
+        // two bounds this point's k-th; nothing farther is offered. Exact (checked below).
+        let b2 = match prev {
+            Some(d) if i > 0 => {
+                let pp = &pts[i - 1];
+                let step =
+                    ((pp[0] - p[0]).powi(2) + (pp[1] - p[1]).powi(2) + (pp[2] - p[2]).powi(2))
+                        .sqrt();
+                ((d as f64).sqrt() + step).powi(2) * (1.0 + 1e-6)
+            }
+            _ => r2,
+        }
+        .min(r2);
+        // Distance from the query to the nearest face of the cube of half-width l cells that
+        // has cells beyond it (a hair less, for rounding).
+        let u: [f64; 3] = std::array::from_fn(|d| (p[d] - lo[d]) * inv);
+        let reach = |l: i64| -> f64 {
+            let mut m = f64::INFINITY;
+            for d in 0..3 {
+                if c[d] - l > 0 {
+                    m = m.min(u[d] - (c[d] - l) as f64);
+                }
+                if c[d] + l < top[d] {
+                    m = m.min((c[d] + l + 1) as f64 - u[d]);
+                }
+            }
+            m * cw * (1.0 - 1e-9)
+        };
+        // The 27 cells around the query's cell are looked up once per cell: consecutive
+        // points (canonical order) mostly share a cell.
+        let key = pack(c);
+        if cube.key != Some(key) {
+            cube.key = Some(key);
+            cube.ranges.clear();
+            for dx in -1..=1 {
+                for dy in -1..=1 {
+                    for dz in -1..=1 {
+                        if let Some(r) = table.get(pack([c[0] + dx, c[1] + dy, c[2] + dz])) {
+                            cube.ranges.push(r);
+                        }
+                    }
+                }
+            }
+        }
+        for &r in &cube.ranges {
+            offer(cand, r, p, i, b2);
+        }
+        let mut l = 1i64;
         loop {
+            let rl = reach(l);
+            if rl * rl >= r2 || l >= max_l {
+                break;
+            }
+            if cand.len() >= k && k > 0 {
+                cand.select_nth_unstable(k - 1);
+                cand.truncate(k);
+                // Strict, in f32: points outside the cube round to at least its reach².
+                if dist_of(cand[k - 1]) < (rl * rl) as f32 {
+                    break;
+                }
+            }
+            l += 1;
             // Add the shell at Chebyshev distance l.
             for dx in -l..=l {
                 for dy in -l..=l {
@@ -361,42 +443,24 @@ pub fn knn_voxel(pts: &[[f64; 3]], k: usize, radius: f64) -> Neighbours {
                     let dzs: &mut dyn Iterator<Item = i64> = if edge {
                         &mut (-l..=l)
                     } else {
-                        &mut [-l, l].into_iter().take(if l == 0 { 1 } else { 2 })
+                        &mut [-l, l].into_iter()
                     };
                     for dz in dzs {
-                        let Some((a, b)) = table.get(pack([c[0] + dx, c[1] + dy, c[2] + dz]))
-                        else {
-                            continue;
-                        };
-                        for (q, &j) in sorted[a as usize..b as usize]
-                            .iter()
-                            .zip(&order[a as usize..b as usize])
-                        {
-                            let d2 = (q[0] - p[0]).powi(2)
-                                + (q[1] - p[1]).powi(2)
-                                + (q[2] - p[2]).powi(2);
-                            if d2 <= r2 && j as usize != i {
-                                cand.push(packed(d2 as f32, j));
-                            }
+                        if let Some(r) = table.get(pack([c[0] + dx, c[1] + dy, c[2] + dz])) {
+                            offer(cand, r, p, i, b2);
                         }
                     }
                 }
             }
-            let covered = l as f64 * cw;
-            if covered >= radius || l >= max_l {
-                break;
-            }
-            if cand.len() >= k && k > 0 {
-                cand.select_nth_unstable(k - 1);
-                cand.truncate(k);
-                // Strict, in f32: points outside the cube round to at least covered².
-                if dist_of(cand[k - 1]) < (covered * covered) as f32 {
-                    break;
-                }
-            }
-            l += 1;
         }
     })
+}
+
+/// The cell ranges of the 3 × 3 × 3 cube around the last query's cell ([`knn_voxel`]).
+#[derive(Default)]
+struct CubeCache {
+    key: Option<u64>,
+    ranges: Vec<(u32, u32)>,
 }
 
 /// Keeps `best` the `k` smallest [`packed`] candidates offered so far, ascending.
@@ -503,7 +567,7 @@ pub fn knn_grid2d(pts: &[[f64; 3]], k: usize, radius: f64) -> Neighbours {
     let max_l = (radius * inv).ceil() as i64 + 1;
     // Rows are computed in cell order (row `q` for the point at sorted position `q`), then
     // moved to point order in place.
-    let mut nb = Neighbours::fill(n, k, |q, _, cand| {
+    let mut nb = Neighbours::fill(n, k, |q, _, cand, _: &mut ()| {
         let p = &sorted[q];
         let me = order[q];
         let cc = cell_of(p);
@@ -606,7 +670,7 @@ fn grid2d_dense(
                 }
             }
         };
-    let mut nb = Neighbours::fill(n, k, |q, prev, cand| {
+    let mut nb = Neighbours::fill(n, k, |q, prev, cand, _: &mut ()| {
         let p = &sorted[q];
         let me = order[q];
         // The previous point's k neighbours (within `prev` of it) all lie within

@@ -368,6 +368,11 @@ impl Stage for SegmentStage {
                 "core_points_segmented": segmented,
                 "points_considered": out.stats.points,
                 "seeds_tried": out.stats.seeds_tried,
+                "seconds": {
+                    "order": out.stats.stage_s[0], "neighbours": out.stats.stage_s[1],
+                    "normals": out.stats.stage_s[2], "colour": out.stats.stage_s[3],
+                    "grow": out.stats.stage_s[4], "output": out.stats.stage_s[5],
+                },
             }),
         );
         tile.segments = out.labels;
