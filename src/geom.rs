@@ -134,6 +134,18 @@ pub fn sym3_eigen(a: [[f64; 3]; 3]) -> ([f64; 3], [[f64; 3]; 3]) {
     (pairs.map(|p| p.0), pairs.map(|p| p.1))
 }
 
+/// A `u32` that orders like [`f32::total_cmp`] orders the floats: negative values (sign bit
+/// set) have all bits flipped, the others only the sign bit.
+#[inline]
+pub fn f32_order_key(x: f32) -> u32 {
+    let b = x.to_bits();
+    if b >> 31 == 1 {
+        !b
+    } else {
+        b | 0x8000_0000
+    }
+}
+
 fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
@@ -182,7 +194,7 @@ fn null_vector(m: &[[f64; 3]; 3], l: f64) -> [f64; 3] {
 
 #[cfg(test)]
 mod eigen_tests {
-    use super::sym3_eigen;
+    use super::{f32_order_key, sym3_eigen};
 
     fn check(a: [[f64; 3]; 3]) {
         let (vals, vecs) = sym3_eigen(a);
@@ -250,5 +262,30 @@ mod eigen_tests {
         check([[2.0, 0.0, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, 2.0]]);
         check([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 0.0]]);
         check([[4.0, 1e-9, 0.0], [1e-9, 4.0, 0.0], [0.0, 0.0, 1.0]]);
+    }
+
+    #[test]
+    fn f32_order_key_orders_like_total_cmp() {
+        let v = [
+            f32::NEG_INFINITY,
+            -3.5,
+            -1e-30,
+            -0.0,
+            0.0,
+            1e-40,
+            0.25,
+            7.0,
+            f32::INFINITY,
+            f32::NAN,
+        ];
+        for a in v {
+            for b in v {
+                assert_eq!(
+                    f32_order_key(a).cmp(&f32_order_key(b)),
+                    a.total_cmp(&b),
+                    "{a} vs {b}"
+                );
+            }
+        }
     }
 }

@@ -212,25 +212,55 @@ fn lab_f(t: f64) -> f64 {
     }
 }
 
+/// sRGB's transfer function removed: a channel in [0, 1] (clamped) to linear light.
+fn srgb_linear(c: f64) -> f64 {
+    let c = c.clamp(0.0, 1.0);
+    if c <= 0.04045 {
+        c / 12.92
+    } else {
+        ((c + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+/// CIELab of linear sRGB (sRGB→XYZ matrix, D65 white).
+fn lab_of_linear(lin: [f64; 3]) -> [f64; 3] {
+    let x = 0.4124564 * lin[0] + 0.3575761 * lin[1] + 0.1804375 * lin[2];
+    let y = 0.2126729 * lin[0] + 0.7151522 * lin[1] + 0.0721750 * lin[2];
+    let z = 0.0193339 * lin[0] + 0.1191920 * lin[1] + 0.9503041 * lin[2];
+    // D65 reference white.
+    let (fx, fy, fz) = (lab_f(x / 0.95047), lab_f(y), lab_f(z / 1.08883));
+    [116.0 * fy - 16.0, 500.0 * (fx - fy), 200.0 * (fy - fz)]
+}
+
+/// [`rgb_to_lab`] with [`LabFormula::Srgb`] of a stored 16-bit colour whose full scale is
+/// 255 (`eight_bit`, see [`rgb_is_8bit`]) or 65535: the same values, the transfer function
+/// read from a table per scale (built once per process) instead of three `powf` a point.
+pub fn rgb16_to_lab(c: [u16; 3], eight_bit: bool) -> [f64; 3] {
+    use std::sync::OnceLock;
+    static T8: OnceLock<Vec<f64>> = OnceLock::new();
+    static T16: OnceLock<Vec<f64>> = OnceLock::new();
+    let table = if eight_bit {
+        T8.get_or_init(|| {
+            (0..=255u16)
+                .map(|v| srgb_linear(v as f64 / 255.0))
+                .collect()
+        })
+    } else {
+        T16.get_or_init(|| {
+            (0..=u16::MAX)
+                .map(|v| srgb_linear(v as f64 / 65535.0))
+                .collect()
+        })
+    };
+    // Above the table (not 8-bit data after all): full scale, as the clamp would give.
+    let lin = c.map(|v| table.get(v as usize).copied().unwrap_or(1.0));
+    lab_of_linear(lin)
+}
+
 /// Converts RGB scaled to [0, 1] into CIELab (L in 0–100). See [`LabFormula`].
 pub fn rgb_to_lab(rgb: [f64; 3], formula: LabFormula) -> [f64; 3] {
     match formula {
-        LabFormula::Srgb => {
-            let lin = rgb.map(|c| {
-                let c = c.clamp(0.0, 1.0);
-                if c <= 0.04045 {
-                    c / 12.92
-                } else {
-                    ((c + 0.055) / 1.055).powf(2.4)
-                }
-            });
-            let x = 0.4124564 * lin[0] + 0.3575761 * lin[1] + 0.1804375 * lin[2];
-            let y = 0.2126729 * lin[0] + 0.7151522 * lin[1] + 0.0721750 * lin[2];
-            let z = 0.0193339 * lin[0] + 0.1191920 * lin[1] + 0.9503041 * lin[2];
-            // D65 reference white.
-            let (fx, fy, fz) = (lab_f(x / 0.95047), lab_f(y), lab_f(z / 1.08883));
-            [116.0 * fy - 16.0, 500.0 * (fx - fy), 200.0 * (fy - fz)]
-        }
+        LabFormula::Srgb => lab_of_linear(rgb.map(srgb_linear)),
         LabFormula::Thesis => {
             let c = rgb.map(|v| v.clamp(0.0, 1.0));
             const M: [[f64; 3]; 3] = [
@@ -302,6 +332,24 @@ mod tests {
         assert!(k[0].abs() < 1e-9);
         let t = rgb_to_lab([1.0, 1.0, 1.0], LabFormula::Thesis);
         assert!((t[0] - 100.0).abs() < 1e-9 && t[1].abs() < 1e-9 && t[2].abs() < 1e-9);
+    }
+
+    #[test]
+    fn table_lookup_gives_the_computed_values_bit_for_bit() {
+        for v in (0..=u16::MAX)
+            .step_by(97)
+            .chain([0, 1, 10, 11, 254, 255, 256, 65534, 65535])
+        {
+            let c = [v, v.wrapping_mul(7), 65535 - v];
+            let want = rgb_to_lab(c.map(|x| x as f64 / 65535.0), LabFormula::Srgb);
+            assert_eq!(rgb16_to_lab(c, false), want, "{c:?}");
+            let c8 = c.map(|x| x % 256);
+            let want = rgb_to_lab(c8.map(|x| x as f64 / 255.0), LabFormula::Srgb);
+            assert_eq!(rgb16_to_lab(c8, true), want, "{c8:?}");
+        }
+        // Not 8-bit after all: clamped to full scale as the division would be.
+        let over = rgb_to_lab([1.0, 300.0 / 255.0, 0.0], LabFormula::Srgb);
+        assert_eq!(rgb16_to_lab([255, 300, 0], true), over);
     }
 
     #[test]

@@ -399,13 +399,14 @@ pub fn segment_at(
     stage[3] = t.elapsed().as_secs_f64();
 
     let t = Instant::now();
-    let mut order: Vec<u32> = (0..pts.len() as u32).collect();
-    order.par_sort_unstable_by(|&a, &b| {
-        normals[a as usize]
-            .1
-            .total_cmp(&normals[b as usize].1)
-            .then(a.cmp(&b))
-    });
+    // Seeds by ascending (curvature, index), sorted as integers.
+    let mut keyed: Vec<u64> = normals
+        .iter()
+        .enumerate()
+        .map(|(i, nv)| ((crate::geom::f32_order_key(nv.1) as u64) << 32) | i as u64)
+        .collect();
+    keyed.par_sort_unstable();
+    let order: Vec<u32> = keyed.into_iter().map(|k| k as u32).collect();
     let inp = grow::Input {
         pts: &pts,
         lab: lab.as_deref(),

@@ -361,15 +361,8 @@ pub fn knn_voxel(pts: &[[f64; 3]], k: usize, radius: f64) -> Neighbours {
         std::array::from_fn(|d| pts.iter().map(|p| cell_of(p)[d]).max().unwrap_or(0));
     // Offers every point of cell `key` within `b2` (squared) of `p` but point `me`.
     let offer = |cand: &mut Vec<u64>, (a, b): (u32, u32), p: &[f64; 3], me: usize, b2: f64| {
-        for (q, &j) in sorted[a as usize..b as usize]
-            .iter()
-            .zip(&order[a as usize..b as usize])
-        {
-            let d2 = (q[0] - p[0]).powi(2) + (q[1] - p[1]).powi(2) + (q[2] - p[2]).powi(2);
-            if d2 <= b2 && j as usize != me {
-                cand.push(packed(d2 as f32, j));
-            }
-        }
+        let (a, b) = (a as usize, b as usize);
+        offer_run(cand, &sorted[a..b], &order[a..b], p, me as u32, b2);
     };
     Neighbours::fill(pts.len(), k, |i, prev, cand, cube: &mut CubeCache| {
         let p = &pts[i];
@@ -461,6 +454,24 @@ pub fn knn_voxel(pts: &[[f64; 3]], k: usize, radius: f64) -> Neighbours {
 struct CubeCache {
     key: Option<u64>,
     ranges: Vec<(u32, u32)>,
+}
+
+/// Appends to `cand` every point of a run of a cell-sorted array (`pts`, their indices `ids`)
+/// within `b2` (squared) of `p`, except point `me`. Branch-free: every point is written and
+/// the length advances only for those that qualify — under the previous point's bound that
+/// is close to a coin toss, and a mispredicted branch per point cost more than its distance.
+#[inline]
+fn offer_run(cand: &mut Vec<u64>, pts: &[[f64; 3]], ids: &[u32], p: &[f64; 3], me: u32, b2: f64) {
+    let base = cand.len();
+    cand.resize(base + pts.len(), 0);
+    let out = &mut cand[base..];
+    let mut w = 0;
+    for (q, &j) in pts.iter().zip(ids) {
+        let d2 = (q[0] - p[0]).powi(2) + (q[1] - p[1]).powi(2) + (q[2] - p[2]).powi(2);
+        out[w] = packed(d2 as f32, j);
+        w += ((d2 <= b2) & (j != me)) as usize;
+    }
+    cand.truncate(base + w);
 }
 
 /// Keeps `best` the `k` smallest [`packed`] candidates offered so far, ascending.
@@ -663,12 +674,7 @@ fn grid2d_dense(
     let scan =
         |cand: &mut Vec<u64>, p: &[f64; 3], me: u32, b2: f64, y: usize, x0: usize, x1: usize| {
             let (a, e) = (start[y * nx + x0] as usize, start[y * nx + x1 + 1] as usize);
-            for (qp, &j) in sorted[a..e].iter().zip(&order[a..e]) {
-                let d2 = (qp[0] - p[0]).powi(2) + (qp[1] - p[1]).powi(2) + (qp[2] - p[2]).powi(2);
-                if d2 <= b2 && j != me {
-                    cand.push(packed(d2 as f32, j));
-                }
-            }
+            offer_run(cand, &sorted[a..e], &order[a..e], p, me, b2);
         };
     let mut nb = Neighbours::fill(n, k, |q, prev, cand, _: &mut ()| {
         let p = &sorted[q];

@@ -16,8 +16,9 @@ use crate::label::{
 };
 use crate::model::{RecordLayout, Tile};
 use crate::segment::features::normals;
+use crate::segment::features::rgb16_to_lab;
 use crate::segment::neighbours::knn_grid2d;
-use crate::segment::{rgb_is_8bit, rgb_to_lab, LabFormula};
+use crate::segment::rgb_is_8bit;
 use serde::Deserialize;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -391,10 +392,8 @@ impl LabelStage {
                     [v(0), v(1), v(2)]
                 })
                 .collect();
-            let s = if rgb_is_8bit(&rgb) { 255.0 } else { 65535.0 };
-            rgb.iter()
-                .map(|c| rgb_to_lab(c.map(|v| v as f64 / s), LabFormula::Srgb))
-                .collect()
+            let eight = rgb_is_8bit(&rgb);
+            rgb.iter().map(|&c| rgb16_to_lab(c, eight)).collect()
         });
         times[2] = t.elapsed().as_secs_f64();
         let t = std::time::Instant::now();
