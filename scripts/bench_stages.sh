@@ -8,7 +8,7 @@
 # end-to-end / pass-through, and per stage the CPU microseconds per input point and the points
 # worked on per input point (summary.json `stages`). With OLD_BIN=path (e.g. a build of an
 # earlier commit) that binary's end-to-end demo runs are timed too, alternated, for a
-# before/after ratio in the same session. With DRIVE_256=1, then the drive once at
+# before/after ratio in the same session (and its drive runs, for the stage figures). With DRIVE_256=1, then the drive once at
 # --memory-budget 256 with two workers (wall, peak RSS from /usr/bin/time -v and VmHWM).
 # Usage: scripts/bench_stages.sh [RUNS=3] [DRIVE_LENGTH_M=310]
 set -euo pipefail
@@ -44,6 +44,7 @@ for i in $(seq "$RUNS"); do
   if [ -n "$OLD_BIN" ]; then run demo_old "$OLD_BIN" "$W/o_demo_old" "$W/demo/scene" "${DEMO_SET[@]}"; fi
   run drive_pt "$BIN" "$W/o_drive_pt" "$W/drive_laz" --set 'stages.run=["stats"]'
   run drive_e2e "$BIN" "$W/o_drive_e2e" "$W/drive_laz"
+  if [ -n "$OLD_BIN" ]; then run drive_old "$OLD_BIN" "$W/o_drive_old" "$W/drive_laz"; fi
 done
 
 if [ "${DRIVE_256:-0}" = 1 ]; then
@@ -65,13 +66,17 @@ for scene in ("demo", "drive"):
     print(f"  pass-through: median {pt:.2f} s = {n / pt / 1e6:.2f} M points/s (max RSS {pt_rss:.0f} MiB)")
     print(f"  end to end:   median {e2e:.2f} s = {n / e2e / 1e6:.2f} M points/s (max RSS {e2e_rss:.0f} MiB)")
     print(f"  throughput ratio end-to-end / pass-through: {pt / e2e:.3f}")
-    if old and scene == "demo":
+    if old:
         o, o_rss = med(f"{scene}_old")
         print(f"  old binary end to end: median {o:.2f} s (max RSS {o_rss:.0f} MiB); ratio old/pass-through {pt / o:.3f}; speed-up {o / e2e:.2f}x")
+    so = json.load(open(f"{w}/o_{scene}_old/summary.json")) if old else None
     for k, v in s["stages"].items():
         if k == "stats":
             continue
-        print(f"  stage {k:8s} {v['cpu_us_per_input_point']:6.2f} CPU-us per input point, "
+        was = ""
+        if so and k in so.get("stages", {}):
+            was = f" (old binary, last run: {so['stages'][k]['cpu_us_per_input_point']:.2f})"
+        print(f"  stage {k:8s} {v['cpu_us_per_input_point']:6.2f} CPU-us per input point{was}, "
               f"{v['points_per_input_point']:.2f} points worked on per input point, "
               f"peak {v['bytes_per_point_peak']:.0f} B per tile point")
     print(f"  tiles {s['tiles']}, split grid tiles {s['tiles_split']}")

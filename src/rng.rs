@@ -1,5 +1,44 @@
 //! The small deterministic random generator (SplitMix64) used by the scene generator and by
-//! tests: fixed streams from a seed, no dependency, below every module that needs one.
+//! tests: fixed streams from a seed, no dependency, below every module that needs one; and the
+//! fast hasher for keys we generate ourselves.
+
+/// A small multiplicative hasher for keys we generate ourselves (tile ids, grid cells): the
+/// binning loop and the per-point cell maps look keys up per point, and SipHash's DoS
+/// resistance buys nothing there. Not for keys from input files' text.
+#[derive(Default, Clone, Copy)]
+pub struct FastHasher(u64);
+
+impl std::hash::Hasher for FastHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+    fn write(&mut self, bytes: &[u8]) {
+        for b in bytes {
+            self.write_u64(*b as u64);
+        }
+    }
+    fn write_u64(&mut self, v: u64) {
+        self.0 = (self.0.rotate_left(5) ^ v).wrapping_mul(0x51_7c_c1_b7_27_22_0a_95);
+    }
+    fn write_i64(&mut self, v: i64) {
+        self.write_u64(v as u64);
+    }
+    fn write_usize(&mut self, v: usize) {
+        self.write_u64(v as u64);
+    }
+    fn write_u32(&mut self, v: u32) {
+        self.write_u64(v as u64);
+    }
+    fn write_u8(&mut self, v: u8) {
+        self.write_u64(v as u64);
+    }
+}
+
+/// A `HashMap` with [`FastHasher`].
+pub type FastMap<K, V> = std::collections::HashMap<K, V, std::hash::BuildHasherDefault<FastHasher>>;
+
+/// A `HashSet` with [`FastHasher`].
+pub type FastSet<K> = std::collections::HashSet<K, std::hash::BuildHasherDefault<FastHasher>>;
 
 /// SplitMix64 generator with Box–Muller normals.
 pub struct Rng(pub u64);

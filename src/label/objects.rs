@@ -13,6 +13,7 @@
 //! Heights are above a ground grid built from the tile's ground points (cell means, holes
 //! filled from the nearest filled cells).
 
+use crate::rng::{FastMap, FastSet};
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 
@@ -395,8 +396,8 @@ pub fn classify_objects(
             (q[2] / p.voxel_m).floor() as i64,
         )
     };
-    let mut building_vox: std::collections::HashSet<(i64, i64, i64)> = Default::default();
-    let mut vox: HashMap<(i64, i64, i64), u32> = HashMap::new();
+    let mut building_vox: FastSet<(i64, i64, i64)> = Default::default();
+    let mut vox: FastMap<(i64, i64, i64), u32> = FastMap::default();
     let mut vox_keys: Vec<(i64, i64, i64)> = Vec::new();
     let mut point_vox = vec![u32::MAX; n];
     for i in 0..n {
@@ -440,14 +441,14 @@ pub fn classify_objects(
             }
         }
     }
-    let mut objects: HashMap<u32, Vec<u32>> = HashMap::new();
+    let mut objects: FastMap<u32, Vec<u32>> = FastMap::default();
     for (i, &v) in point_vox.iter().enumerate() {
         if v != u32::MAX {
             let r = find(&mut parent, v);
             objects.entry(r).or_default().push(i as u32);
         }
     }
-    let mut touching: HashMap<u32, bool> = HashMap::new();
+    let mut touching: FastMap<u32, bool> = FastMap::default();
     for (v, k) in vox_keys.iter().enumerate() {
         let t = (-1..=1).any(|dz| {
             (-1..=1)

@@ -6,7 +6,7 @@ use super::TileJob;
 use crate::error::{Error, Result};
 use crate::geom::cell_representative;
 use crate::model::{RecordLayout, Rect, Tile, TileName};
-use std::collections::{HashMap, HashSet};
+use crate::rng::{FastMap, FastSet};
 use std::path::Path;
 
 /// Points read per block when streaming spill files.
@@ -391,9 +391,9 @@ struct FarKeeper {
     rule: FarCells,
     rl: usize,
     /// Per cell: point count and kept (z, point id, slab slot), sorted by (z, point id).
-    cells: HashMap<(i64, i64), (u64, Vec<Kept>)>,
+    cells: FastMap<(i64, i64), (u64, Vec<Kept>)>,
     /// Cells whose lowest points do not decide the representative: all their points.
-    all: HashMap<(i64, i64), Vec<Kept>>,
+    all: FastMap<(i64, i64), Vec<Kept>>,
     slab: Vec<u8>,
     offered: u64,
 }
@@ -403,8 +403,8 @@ impl FarKeeper {
         FarKeeper {
             rule,
             rl,
-            cells: HashMap::new(),
-            all: HashMap::new(),
+            cells: FastMap::default(),
+            all: FastMap::default(),
             slab: Vec::new(),
             offered: 0,
         }
@@ -431,9 +431,9 @@ impl FarKeeper {
 
     /// Cells whose held points do not decide the representative; prepares to receive all
     /// their points ([`FarKeeper::offer_all`], second pass).
-    fn undecided(&mut self) -> HashSet<(i64, i64)> {
+    fn undecided(&mut self) -> FastSet<(i64, i64)> {
         let w = self.rule.window_m;
-        let open: HashSet<(i64, i64)> = self
+        let open: FastSet<(i64, i64)> = self
             .cells
             .iter()
             .filter(|(_, (count, held))| {
@@ -662,7 +662,7 @@ mod tests {
             assert!(tile.xyz[..tile.n_core]
                 .iter()
                 .all(|p| core.contains(p[0], p[1])));
-            let mut far_cells = HashSet::new();
+            let mut far_cells = std::collections::HashSet::new();
             let mut in_near = 0;
             for p in &tile.xyz[tile.n_core..] {
                 assert!(outer.contains(p[0], p[1]));

@@ -10,7 +10,7 @@ use crate::error::{Error, Result};
 use crate::model::TileId;
 use std::collections::HashMap;
 use std::fs::OpenOptions;
-use std::hash::{BuildHasherDefault, Hasher};
+use std::hash::BuildHasherDefault;
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -37,30 +37,7 @@ pub fn spill_path(dir: &Path, id: TileId, part: Part) -> PathBuf {
     ))
 }
 
-/// A small multiplicative hasher for tile ids: the binning loop looks tiles up per point, and
-/// SipHash's DoS resistance buys nothing for keys we generate ourselves.
-#[derive(Default, Clone, Copy)]
-pub struct FastHasher(u64);
-
-impl Hasher for FastHasher {
-    fn finish(&self) -> u64 {
-        self.0
-    }
-    fn write(&mut self, bytes: &[u8]) {
-        for b in bytes {
-            self.write_u64(*b as u64);
-        }
-    }
-    fn write_u64(&mut self, v: u64) {
-        self.0 = (self.0.rotate_left(5) ^ v).wrapping_mul(0x51_7c_c1_b7_27_22_0a_95);
-    }
-    fn write_i64(&mut self, v: i64) {
-        self.write_u64(v as u64);
-    }
-    fn write_u8(&mut self, v: u8) {
-        self.write_u64(v as u64);
-    }
-}
+pub use crate::rng::FastHasher;
 
 /// HashMap keyed by tile ids with [`FastHasher`].
 pub type TileMap<V> = HashMap<TileId, V, BuildHasherDefault<FastHasher>>;
