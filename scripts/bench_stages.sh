@@ -7,9 +7,9 @@
 # alternated in the same session, RUNS times each; prints the medians, the throughput ratio
 # end-to-end / pass-through, and per stage the CPU microseconds per input point and the points
 # worked on per input point (summary.json `stages`). With OLD_BIN=path (e.g. a build of an
-# earlier commit) that binary's end-to-end demo runs are timed too, alternated, for a
-# before/after ratio in the same session (and its drive runs, for the stage figures). With DRIVE_256=1, then the drive once at
-# --memory-budget 256 with two workers (wall, peak RSS from /usr/bin/time -v and VmHWM).
+# earlier commit) that binary's end-to-end runs of both scenes are timed too, alternated, for
+# before/after ratios and stage figures in the same session. With DRIVE_256=1, then the drive
+# once at --memory-budget 256 with two workers (wall, peak RSS from /usr/bin/time -v and VmHWM).
 # Usage: scripts/bench_stages.sh [RUNS=3] [DRIVE_LENGTH_M=310]
 set -euo pipefail
 cd "$(dirname "$0")/.."
