@@ -380,6 +380,29 @@ pub fn knn_voxel(pts: &[[f64; 3]], k: usize, radius: f64) -> Neighbours {
             _ => r2,
         }
         .min(r2);
+        // With such a bound the search is a box query: every point within √b2 lies in the
+        // cells the box [p − √b2, p + √b2] touches (a hair wider, for rounding), and at least
+        // k do, so their k nearest are the answer — no shells, no check.
+        if b2 < r2 {
+            let b = b2.sqrt() * (1.0 + 1e-9) + 1e-9;
+            let c0: [i64; 3] =
+                std::array::from_fn(|d| (((p[d] - b - lo[d]) * inv).floor() as i64).max(0));
+            let c1: [i64; 3] =
+                std::array::from_fn(|d| (((p[d] + b - lo[d]) * inv).floor() as i64).min(top[d]));
+            let cells: i64 = (0..3).map(|d| (c1[d] - c0[d] + 1).max(0)).product();
+            if cells <= BOX_CELLS {
+                for x in c0[0]..=c1[0] {
+                    for y in c0[1]..=c1[1] {
+                        for z in c0[2]..=c1[2] {
+                            if let Some(r) = table.get(pack([x, y, z])) {
+                                offer(cand, r, p, i, b2);
+                            }
+                        }
+                    }
+                }
+                return;
+            }
+        }
         // Distance from the query to the nearest face of the cube of half-width l cells that
         // has cells beyond it (a hair less, for rounding).
         let u: [f64; 3] = std::array::from_fn(|d| (p[d] - lo[d]) * inv);
@@ -448,6 +471,10 @@ pub fn knn_voxel(pts: &[[f64; 3]], k: usize, radius: f64) -> Neighbours {
         }
     })
 }
+
+/// Largest box (in cells) [`knn_voxel`] scans for a query bounded by its predecessor; a
+/// larger one takes the shell search around the query's cell instead.
+const BOX_CELLS: i64 = 64;
 
 /// The cell ranges of the 3 × 3 × 3 cube around the last query's cell ([`knn_voxel`]).
 #[derive(Default)]
