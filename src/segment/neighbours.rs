@@ -302,48 +302,30 @@ fn occupancy(pts: &[[f64; 3]], lo: [f64; 3], c: f64) -> f64 {
     pts.len() as f64 / keys.len().max(1) as f64
 }
 
-/// The `k` nearest neighbours of every point within `radius`, with a hashed voxel grid.
-///
-/// The cell width adapts to the data: it is chosen so an occupied cell holds about `k`
-/// points (the local dimension — 2 for a roof or façade, 3 for a tree crown — is estimated
-/// from how the occupancy falls when the cell is halved). A query scans cubes of cells of
-/// growing half-width `L` around its own cell and stops as soon as it holds `k` candidates
-/// no farther than `L` cell widths (nothing outside the cube can be closer) or the cube
-/// covers `radius`.
-pub fn knn_voxel(pts: &[[f64; 3]], k: usize, radius: f64) -> Neighbours {
-    if pts.is_empty() {
-        return Neighbours::rows(0, k);
-    }
-    let mut lo = [f64::INFINITY; 3];
-    for p in pts {
-        for d in 0..3 {
-            lo[d] = lo[d].min(p[d]);
-        }
-    }
+/// Cell width of [`knn_voxel`] for points whose lower corner is `lo`: an occupied cell should
+/// hold about `k` points (the local dimension — 2 for a roof or façade, 3 for a tree crown —
+/// is estimated from how the occupancy falls when the cell is halved), at most `radius`, and
+/// cells must stay addressable by 21-bit coordinates.
+fn voxel_width(pts: &[[f64; 3]], lo: [f64; 3], k: usize, radius: f64) -> f64 {
     let o1 = occupancy(pts, lo, radius);
     let o2 = occupancy(pts, lo, radius * 0.5);
     let dim = (o1 / o2.max(1e-9)).log2().clamp(1.0, 3.0);
-    let mut cw = (radius * (k as f64 / o1).powf(1.0 / dim)).min(radius);
-    // Cells must stay addressable by 21-bit coordinates.
+    let cw = (radius * (k as f64 / o1).powf(1.0 / dim)).min(radius);
     let ext = pts
         .iter()
         .flat_map(|p| (0..3).map(move |d| p[d] - lo[d]))
         .fold(0.0, f64::max);
-    cw = cw.max(ext / ((1u64 << 20) as f64)).max(1e-9);
-    let inv = 1.0 / cw;
-    let cell_of =
-        |p: &[f64; 3]| -> [i64; 3] { std::array::from_fn(|d| ((p[d] - lo[d]) * inv) as i64) };
-    let cells: Vec<u64> = pts.iter().map(|p| pack(cell_of(p))).collect();
-    let mut order: Vec<u32> = (0..pts.len() as u32).collect();
-    order.par_sort_unstable_by_key(|&i| (cells[i as usize], i));
-    let sorted: Vec<[f64; 3]> = order.iter().map(|&i| pts[i as usize]).collect();
-    let mut ncell = 0;
-    for w in order.windows(2) {
-        if cells[w[0] as usize] != cells[w[1] as usize] {
-            ncell += 1;
-        }
-    }
-    let mut table = CellTable::new(ncell + 1);
+    cw.max(ext / ((1u64 << 20) as f64)).max(1e-9)
+}
+
+/// The table from each cell key to its run of the cell-sorted points (`order` sorted by
+/// `cells`, the key per point).
+fn cell_runs(order: &[u32], cells: &[u64]) -> CellTable {
+    let ncell = 1 + order
+        .windows(2)
+        .filter(|w| cells[w[0] as usize] != cells[w[1] as usize])
+        .count();
+    let mut table = CellTable::new(ncell);
     let mut s = 0usize;
     while s < order.len() {
         let c = cells[order[s] as usize];
@@ -354,6 +336,37 @@ pub fn knn_voxel(pts: &[[f64; 3]], k: usize, radius: f64) -> Neighbours {
         table.insert(c, (s as u32, e as u32));
         s = e;
     }
+    table
+}
+
+/// The `k` nearest neighbours of every point within `radius`, with a hashed voxel grid.
+///
+/// The cell width adapts to the data ([`voxel_width`]). A query whose predecessor (in the
+/// callers' spatially coherent order) has `k` neighbours gets a bound on its own `k`-th
+/// distance and scans the cells of the box that bound spans; otherwise it scans cubes of
+/// cells of growing half-width `L` around its own cell and stops as soon as it holds `k`
+/// candidates nearer than the cube's faces (nothing outside the cube can be closer) or the
+/// cube covers `radius`.
+pub fn knn_voxel(pts: &[[f64; 3]], k: usize, radius: f64) -> Neighbours {
+    if pts.is_empty() {
+        return Neighbours::rows(0, k);
+    }
+    let mut lo = [f64::INFINITY; 3];
+    for p in pts {
+        for d in 0..3 {
+            lo[d] = lo[d].min(p[d]);
+        }
+    }
+    let cw = voxel_width(pts, lo, k, radius);
+    let inv = 1.0 / cw;
+    let cell_of =
+        |p: &[f64; 3]| -> [i64; 3] { std::array::from_fn(|d| ((p[d] - lo[d]) * inv) as i64) };
+    let cells: Vec<u64> = pts.iter().map(|p| pack(cell_of(p))).collect();
+    let mut order: Vec<u32> = (0..pts.len() as u32).collect();
+    order.par_sort_unstable_by_key(|&i| (cells[i as usize], i));
+    let sorted: Vec<[f64; 3]> = order.iter().map(|&i| pts[i as usize]).collect();
+    let table = cell_runs(&order, &cells);
+    drop(cells);
     let r2 = radius * radius;
     let max_l = (radius * inv).ceil() as i64 + 1;
     // Highest cell coordinate per axis: no cell lies beyond it.
