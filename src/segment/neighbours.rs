@@ -341,9 +341,10 @@ fn cell_runs(order: &[u32], cells: &[u64]) -> CellTable {
 
 /// The `k` nearest neighbours of every point within `radius`, with a hashed voxel grid.
 ///
-/// The cell width adapts to the data ([`voxel_width`]). A query whose predecessor (in the
-/// callers' spatially coherent order) has `k` neighbours gets a bound on its own `k`-th
-/// distance and scans the cells of the box that bound spans; otherwise it scans cubes of
+/// The cell width adapts to the data (an occupied cell holds about `k` points, at most
+/// `radius` wide). A query whose predecessor (in the callers' spatially coherent order) has
+/// `k` neighbours gets a bound on its own `k`-th distance and scans the cells of the box
+/// that bound spans; otherwise it scans cubes of
 /// cells of growing half-width `L` around its own cell and stops as soon as it holds `k`
 /// candidates nearer than the cube's faces (nothing outside the cube can be closer) or the
 /// cube covers `radius`.
