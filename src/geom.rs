@@ -146,6 +146,18 @@ pub fn f32_order_key(x: f32) -> u32 {
     }
 }
 
+/// Indices `0..n` in ascending order of `keys` ([`f32::total_cmp`]), ties by index: sorted as
+/// integers (the float's [`f32_order_key`] above the index).
+pub fn ascending_by_f32(keys: impl Iterator<Item = f32>) -> Vec<u32> {
+    use rayon::slice::ParallelSliceMut;
+    let mut keyed: Vec<u64> = keys
+        .enumerate()
+        .map(|(i, v)| ((f32_order_key(v) as u64) << 32) | i as u64)
+        .collect();
+    keyed.par_sort_unstable();
+    keyed.into_iter().map(|k| k as u32).collect()
+}
+
 fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }

@@ -244,15 +244,7 @@ fn grow_regions(
     let n = normals.len();
     let r2 = (p.radius_m * p.radius_m) as f32;
     let cos_a = p.angle_deg.to_radians().cos() as f32;
-    // Ascending (surface variation, index), as integers: the f32's total order in the high
-    // half, the index in the low.
-    let mut keyed: Vec<u64> = normals
-        .iter()
-        .enumerate()
-        .map(|(i, nv)| ((crate::geom::f32_order_key(nv.1) as u64) << 32) | i as u64)
-        .collect();
-    keyed.sort_unstable();
-    let order: Vec<u32> = keyed.into_iter().map(|k| k as u32).collect();
+    let order = crate::geom::ascending_by_f32(normals.iter().map(|nv| nv.1));
     let mut region = vec![0u32; n];
     let mut regions: Vec<Region> = vec![Region {
         n: 0,

@@ -399,14 +399,8 @@ pub fn segment_at(
     stage[3] = t.elapsed().as_secs_f64();
 
     let t = Instant::now();
-    // Seeds by ascending (curvature, index), sorted as integers.
-    let mut keyed: Vec<u64> = normals
-        .iter()
-        .enumerate()
-        .map(|(i, nv)| ((crate::geom::f32_order_key(nv.1) as u64) << 32) | i as u64)
-        .collect();
-    keyed.par_sort_unstable();
-    let order: Vec<u32> = keyed.into_iter().map(|k| k as u32).collect();
+    // Seeds by ascending (curvature, index).
+    let order = crate::geom::ascending_by_f32(normals.iter().map(|nv| nv.1));
     let inp = grow::Input {
         pts: &pts,
         lab: lab.as_deref(),

@@ -383,17 +383,7 @@ pub fn knn_voxel(pts: &[[f64; 3]], k: usize, radius: f64) -> Neighbours {
         let c = cell_of(p);
         // As in the 2-D grid: the previous point's k-th distance plus the step between the
         // two bounds this point's k-th; nothing farther is offered. Exact (checked below).
-        let b2 = match prev {
-            Some(d) if i > 0 => {
-                let pp = &pts[i - 1];
-                let step =
-                    ((pp[0] - p[0]).powi(2) + (pp[1] - p[1]).powi(2) + (pp[2] - p[2]).powi(2))
-                        .sqrt();
-                ((d as f64).sqrt() + step).powi(2) * (1.0 + 1e-6)
-            }
-            _ => r2,
-        }
-        .min(r2);
+        let b2 = successor_bound(prev, p, i.checked_sub(1).map(|h| &pts[h]), r2);
         // With such a bound the search is a box query: every point within √b2 lies in the
         // cells the box [p − √b2, p + √b2] touches (a hair wider, for rounding), and at least
         // k do, so their k nearest are the answer — no shells, no check.
@@ -484,6 +474,22 @@ pub fn knn_voxel(pts: &[[f64; 3]], k: usize, radius: f64) -> Neighbours {
             }
         }
     })
+}
+
+/// Bound on the squared `k`-th neighbour distance of `p` from its predecessor `pp` (whose
+/// `k`-th squared distance is `prev`): those `k` neighbours, with `pp` itself standing in for
+/// `p` if `p` was one of them, lie within √prev + |p − pp|; a hair more for the f32 rounding
+/// of `prev`; capped at `r2`, which is also the answer without a predecessor.
+#[inline]
+fn successor_bound(prev: Option<f32>, p: &[f64; 3], pp: Option<&[f64; 3]>, r2: f64) -> f64 {
+    match (prev, pp) {
+        (Some(d), Some(pp)) => {
+            let step =
+                ((pp[0] - p[0]).powi(2) + (pp[1] - p[1]).powi(2) + (pp[2] - p[2]).powi(2)).sqrt();
+            (((d as f64).sqrt() + step).powi(2) * (1.0 + 1e-6)).min(r2)
+        }
+        _ => r2,
+    }
 }
 
 /// Largest box (in cells) [`knn_voxel`] scans for a query bounded by its predecessor; a
@@ -725,17 +731,7 @@ fn grid2d_dense(
         // for this one if it was on that list): nothing farther can be among this point's k
         // nearest, so the block's scan keeps only what lies within that bound (a hair more,
         // for the f32 rounding of `prev`). Exact: the block result is still checked below.
-        let b2 = match prev {
-            Some(d) if q > 0 => {
-                let pp = &sorted[q - 1];
-                let step =
-                    ((pp[0] - p[0]).powi(2) + (pp[1] - p[1]).powi(2) + (pp[2] - p[2]).powi(2))
-                        .sqrt();
-                ((d as f64).sqrt() + step).powi(2) * (1.0 + 1e-6)
-            }
-            _ => r2,
-        }
-        .min(r2);
+        let b2 = successor_bound(prev, p, q.checked_sub(1).map(|h| &sorted[h]), r2);
         let [cx, cy] = cell_xy(p);
         let (x0, x1) = (cx.saturating_sub(1), (cx + 1).min(nx - 1));
         for y in cy.saturating_sub(1)..=(cy + 1).min(ny - 1) {
