@@ -262,8 +262,13 @@ impl Routing {
 
     /// The far cell of a point for child q, None when the child keeps it in full.
     fn far_cell(&self, q: usize, x: f64, y: f64) -> Option<(i64, i64)> {
+        self.far_key(q, (cell_of(x, self.cell_m), cell_of(y, self.cell_m)))
+    }
+
+    /// [`Routing::far_cell`] of a point in far-grid cell `(cx, cy)`.
+    #[inline]
+    fn far_key(&self, q: usize, (cx, cy): (i64, i64)) -> Option<(i64, i64)> {
         let [cx0, cy0, cx1, cy1] = self.near[q]?;
-        let (cx, cy) = (cell_of(x, self.cell_m), cell_of(y, self.cell_m));
         let inside = (cx0..=cx1).contains(&cx) && (cy0..=cy1).contains(&cy);
         (!inside).then_some((cx, cy))
     }
@@ -284,11 +289,13 @@ impl Routing {
             part.for_each(rl, BLOCK_POINTS, |pid, rec| {
                 let [x, y, z] = layout.xyz(rec);
                 let core_q = self.core_child(parent_core, x, y);
+                // The far cell, the same for every child (two `floor`s, once per point).
+                let cell = (cell_of(x, self.cell_m), cell_of(y, self.cell_m));
                 for q in 0..4 {
                     if core_q == Some(q) {
                         set.push(slots[q], Part::Core, pid, rec)?;
                     } else if self.outer[q].contains(x, y) {
-                        match self.far_cell(q, x, y) {
+                        match self.far_key(q, cell) {
                             Some(key) => keepers[q].offer(key, z, pid, rec),
                             None => {
                                 set.push(slots[q], Part::Buffer, pid, rec)?;
@@ -414,6 +421,10 @@ impl FarKeeper {
         self.offered += 1;
         let (count, cell) = self.cells.entry(key).or_default();
         *count += 1;
+        // Most points of a dense cell lie above its full list of lowest: no search for them.
+        if cell.len() == FAR_KEEP && cell.last().is_some_and(|e| (e.0, e.1) < (z, pid)) {
+            return;
+        }
         // Sorted by (z, point id): the result does not depend on the order points arrive in.
         let pos = cell.partition_point(|e| (e.0, e.1) < (z, pid));
         if cell.len() < FAR_KEEP {
