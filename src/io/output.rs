@@ -310,6 +310,11 @@ pub struct TileWriter {
 }
 
 impl TileWriter {
+    /// The container the tiles are written in.
+    pub fn container(&self) -> Container {
+        self.container
+    }
+
     /// Prepares a writer from the first input's header and the run layout. With
     /// `segments`, output records carry a `segment_id` extra-bytes attribute of that type
     /// (reusing the input's own `segment_id` attribute when it has one of the same type, so

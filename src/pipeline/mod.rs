@@ -321,6 +321,7 @@ fn execute(
         Some(journal),
     );
     collector.keep_deferred = scope.is_some();
+    collector.write_threads = budget.workers;
     if scope.is_none() {
         collector.progress = Some((progress, set.total_points));
     }
