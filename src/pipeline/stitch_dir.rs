@@ -117,6 +117,8 @@ pub fn stitch_plan_dir(dir: &Path, overwrite: bool) -> Result<Summary> {
         None,
     );
     collector.keep_deferred = true;
+    // No worker holds a tile here: the tiles readied together are written in parallel.
+    collector.write_threads = run.budget.workers;
     collector.spill_frontier_beyond(run.budget.stitch_bytes);
     let keys: Vec<CellKey> = cells.keys().copied().collect();
     for &cell in &keys {
