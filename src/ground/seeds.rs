@@ -640,7 +640,7 @@ mod tests {
         let compact: Vec<[f64; 3]> = (0..5000)
             .map(|_| {
                 [
-                    -3.0 + 9.0 * r(),
+                    3.0 + 9.0 * r(),
                     2.0 + 7.0 * r(),
                     (10.0 * r()).round() / 10.0,
                 ]
@@ -649,6 +649,10 @@ mod tests {
         let spread: Vec<[f64; 3]> = (0..500)
             .map(|_| [1e7 * (r() - 0.5), 1e7 * (r() - 0.5), r()])
             .collect();
+        // The compact cloud takes the counting sort (positive cells, 18 × 14 of them), the
+        // spread one the plain sort (its cells span far more than 4 per point); cells of
+        // negative coordinates sort after the positive ones (their u32 keys), so a cloud
+        // across 0 takes the plain sort too.
         for pts in [compact, spread] {
             let n = pts.len() as u32;
             // Every other point, reversed: the candidates need not be in point order.
