@@ -630,24 +630,18 @@ mod tests {
     /// compact tile and (the fallback) on cells spread over the whole coordinate range.
     #[test]
     fn by_cell_then_z_is_the_lexicographic_order() {
-        let mut s = 7u64;
-        let mut r = || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (s >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut r = crate::rng::Rng(7);
         let compact: Vec<[f64; 3]> = (0..5000)
             .map(|_| {
                 [
-                    3.0 + 9.0 * r(),
-                    2.0 + 7.0 * r(),
-                    (10.0 * r()).round() / 10.0,
+                    r.range(3.0, 12.0),
+                    r.range(2.0, 9.0),
+                    (10.0 * r.u()).round() / 10.0,
                 ]
             })
             .collect();
         let spread: Vec<[f64; 3]> = (0..500)
-            .map(|_| [1e7 * (r() - 0.5), 1e7 * (r() - 0.5), r()])
+            .map(|_| [r.range(-5e6, 5e6), r.range(-5e6, 5e6), r.u()])
             .collect();
         // The compact cloud takes the counting sort (positive cells, 18 × 14 of them), the
         // spread one the plain sort (its cells span far more than 4 per point); cells of
