@@ -17,8 +17,9 @@ pub struct GroundLabelParams {
     /// Neighbourhood radius, metres.
     pub radius_m: f64,
     /// Ground points farther than this outside a tile's core get no subclass there (their
-    /// neighbours, normals and regions are most of the label stage's work); capped by
-    /// `label.context_m`, which the cheaper object labelling uses.
+    /// neighbours, normals and regions are most of the label stage's work); never less than
+    /// `radius_m` (a core point's neighbourhood is always whole), capped by `label.context_m`,
+    /// which the cheaper object labelling uses. See [`GroundLabelParams::context`].
     pub context_m: f64,
     /// Largest angle between the normals of neighbouring points in one region, degrees
     /// (document: 45).
@@ -63,7 +64,7 @@ impl Default for GroundLabelParams {
         GroundLabelParams {
             k: 12,
             radius_m: 0.35,
-            context_m: 2.0,
+            context_m: 0.5,
             angle_deg: 45.0,
             curvature: 0.05,
             colour_region: 12.0,
@@ -80,6 +81,15 @@ impl Default for GroundLabelParams {
             level_nz: 0.95,
             geometry_codes: [11, 65, 67],
         }
+    }
+}
+
+impl GroundLabelParams {
+    /// The ground subclasses' context beyond a tile's core, metres: `context_m`, at least
+    /// `radius_m` so that every core point's neighbourhood (hence its normal) is whole,
+    /// capped by the stage's context `cap` (`label.context_m`).
+    pub fn context(&self, cap: f64) -> f64 {
+        self.context_m.max(self.radius_m).min(cap)
     }
 }
 
@@ -413,6 +423,21 @@ mod tests {
     use crate::label::samples::Sample;
     use crate::segment::features::normals;
     use crate::segment::neighbours::knn_surface;
+
+    #[test]
+    fn ground_context_covers_a_neighbourhood_and_stays_within_the_stage_context() {
+        let p = GroundLabelParams::default();
+        assert_eq!(p.context(5.0), 0.5);
+        // Narrower than the neighbourhood: widened to it, so core points keep all neighbours.
+        let wide = GroundLabelParams {
+            radius_m: 1.0,
+            ..p.clone()
+        };
+        assert_eq!(wide.context(5.0), 1.0);
+        // Never beyond the stage's own context.
+        assert_eq!(wide.context(0.8), 0.8);
+        assert_eq!(p.context(0.2), 0.2);
+    }
 
     /// A flat 10 × 4 m strip, dark asphalt for x < 5 and red cycle path beyond, with colour
     /// noise and a shadowed patch of asphalt; samples for sunlit and shadowed asphalt kept

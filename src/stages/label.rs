@@ -273,7 +273,7 @@ impl Stage for LabelStage {
             .map(|r| layout.classification(r))
             .collect();
         let in_zone = tile.context_mask(self.section.context_m);
-        let ground_context = self.section.ground.context_m.min(self.section.context_m);
+        let ground_context = self.section.ground.context(self.section.context_m);
         let in_ground_zone = tile.context_mask(ground_context);
         let is_ground: Vec<bool> = classes.iter().map(|&c| c == 2).collect();
         let worked = (0..n)
