@@ -2,11 +2,11 @@
 //!
 //! Repeatedly the largest remaining segment among all cues, by 3-D coverage `R ≈ Σ ρ`
 //! (eq. 6), is taken; if its within-segment dispersion (RMS distance of its pixels' cue
-//! values from their mean, in the cue's units) is acceptable it becomes a segment of the
-//! result, and its pixels are removed from every cue. A segment of another cue that lost
-//! pixels is regrouped into its connected remainders, each with its coverage and dispersion
-//! recomputed. This runs until the largest remaining segment covers less than
-//! `min_coverage`.
+//! values from their mean, in the cue's units) is acceptable — in its own cue and in every
+//! cue marked [`CueSegments::veto`] — it becomes a segment of the result, and its pixels are
+//! removed from every cue. A segment of another cue that lost pixels is regrouped into its
+//! connected remainders, each with its coverage and dispersion recomputed. This runs until
+//! the largest remaining segment covers less than `min_coverage`.
 //!
 //! Regrouping is lazy and exact: a segment's coverage only shrinks when pixels are taken, so
 //! the heap's key is an upper bound; a segment popped with pixels gone is regrouped and its
@@ -28,6 +28,9 @@ pub struct CueSegments<'a> {
     pub labels: Vec<u32>,
     /// Largest acceptable dispersion, cue units.
     pub max_dispersion: f32,
+    /// This cue's dispersion limit also applies to the segments of the other cues (the
+    /// paper checks a segment in its own cue only; see `MulticueParams::colour_veto`).
+    pub veto: bool,
 }
 
 /// How the integration ends and what it keeps.
@@ -154,8 +157,11 @@ pub fn integrate(
         if left.len() < rules.min_pixels {
             continue;
         }
-        let cue = &cues[c.cue];
-        if dispersion(cue.values, cue.dim, &left) > cue.max_dispersion {
+        let spread = |k: usize| dispersion(cues[k].values, cues[k].dim, &left);
+        let too_mixed = (0..cues.len())
+            .filter(|&k| k == c.cue || cues[k].veto)
+            .any(|k| spread(k) > cues[k].max_dispersion);
+        if too_mixed {
             out.rejected += 1;
             continue;
         }
@@ -257,18 +263,21 @@ mod tests {
                 dim: 1,
                 labels: vec![1; n],
                 max_dispersion: 1.0,
+                veto: false,
             },
             CueSegments {
                 values: &vb,
                 dim: 1,
                 labels: lb,
                 max_dispersion: 1.0,
+                veto: false,
             },
             CueSegments {
                 values: &vc,
                 dim: 1,
                 labels: lc,
                 max_dispersion: 1.0,
+                veto: false,
             },
         ];
         let rules = Rules {
@@ -298,6 +307,7 @@ mod tests {
             dim: 1,
             labels: vec![1, 1, 1, 1, 2, 2, 3, 3],
             max_dispersion: 1.0,
+            veto: false,
         }];
         let rules = Rules {
             min_coverage: 25.0,
@@ -306,5 +316,56 @@ mod tests {
         let out = integrate(&img, &mut cues, rules, Jump { tan_theta: 0.1 });
         assert_eq!(out.segments, 1);
         assert_eq!(out.labels, vec![1, 1, 1, 1, 0, 0, 0, 0]);
+    }
+
+    #[test]
+    fn a_vetoing_cue_rejects_segments_mixed_in_it() {
+        // 4 × 10 pixels of one plane (cue N: one segment) in two colours, columns 0-4 and
+        // 5-9 (cue C: two segments). N's segment is the largest; its own dispersion is nil.
+        let (rows, cols) = (4, 10);
+        let img = image(rows, cols);
+        let n = rows * cols;
+        let vn = vec![0.0f32; n];
+        let vc: Vec<f32> = (0..n)
+            .map(|i| if i % cols < 5 { 20.0 } else { 60.0 })
+            .collect();
+        let lc: Vec<u32> = (0..n).map(|i| if i % cols < 5 { 1 } else { 2 }).collect();
+        let run = |veto: bool| {
+            let mut cues = vec![
+                CueSegments {
+                    values: &vn,
+                    dim: 1,
+                    labels: vec![1; n],
+                    max_dispersion: 1.0,
+                    veto: false,
+                },
+                CueSegments {
+                    values: &vc,
+                    dim: 1,
+                    labels: lc.clone(),
+                    max_dispersion: 10.0,
+                    veto,
+                },
+            ];
+            let rules = Rules {
+                min_coverage: 1.0,
+                min_pixels: 2,
+            };
+            integrate(&img, &mut cues, rules, Jump { tan_theta: 0.1 })
+        };
+        // As the paper: the plane is accepted whole, the colours' segments lose their pixels.
+        let paper = run(false);
+        assert_eq!((paper.segments, paper.from_cue.clone()), (1, vec![1, 0]));
+        // With colour vetoing: the plane spreads 20 colour units, rejected; both colours taken.
+        let vetoed = run(true);
+        assert_eq!((vetoed.segments, vetoed.rejected), (2, 1));
+        assert_eq!(vetoed.from_cue, vec![0, 2]);
+        for i in 0..n {
+            assert_eq!(
+                vetoed.labels[i],
+                if i % cols < 5 { 1 } else { 2 },
+                "pixel {i}"
+            );
+        }
     }
 }
