@@ -110,17 +110,7 @@ pub fn filter<const D: usize>(
                             }
                         }
                     }
-                    if n == 0 {
-                        break;
-                    }
-                    let inv = 1.0 / n as f32;
-                    let ny = acc.map(|v| v * inv);
-                    let (nr, nc) = (sr * inv, sc * inv);
-                    let moved = d2(&ny, &y);
-                    let spatial = (nr - yr).powi(2) + (nc - yc).powi(2);
-                    y = ny;
-                    (yr, yc) = (nr, nc);
-                    if moved < stop_v && spatial < 0.25 {
+                    if !shift_window(&mut y, (&mut yr, &mut yc), acc, (sr, sc, n), stop_v) {
                         break;
                     }
                 }
@@ -128,6 +118,30 @@ pub fn filter<const D: usize>(
             }
         });
     out
+}
+
+/// Moves a window to the mean of the `n` pixels it took (value sums `acc`, offset sums `sr`,
+/// `sc`): `y` and its centre `(yr, yc)` are updated. False when the window should stop: it took
+/// nothing, or it moved less than `stop_v` (squared, in value) and half a pixel.
+#[inline]
+fn shift_window<const D: usize>(
+    y: &mut [f32; D],
+    (yr, yc): (&mut f32, &mut f32),
+    acc: [f32; D],
+    (sr, sc, n): (f32, f32, u32),
+    stop_v: f32,
+) -> bool {
+    if n == 0 {
+        return false;
+    }
+    let inv = 1.0 / n as f32;
+    let ny = acc.map(|v| v * inv);
+    let (nr, nc) = (sr * inv, sc * inv);
+    let moved = d2(&ny, y);
+    let spatial = (nr - *yr).powi(2) + (nc - *yc).powi(2);
+    *y = ny;
+    (*yr, *yc) = (nr, nc);
+    !(moved < stop_v && spatial < 0.25)
 }
 
 /// Segments of one cue: label per pixel (0 where not usable), numbered 1.. by first pixel.
@@ -217,7 +231,8 @@ mod tests {
 
     use crate::segment::multicue::image::tests::flat_image;
 
-    /// The filter as first written: every window pixel through [`RangeImage::offset`].
+    /// The filter as first written: every window pixel through [`RangeImage::offset`] (the
+    /// window's move, [`shift_window`], is shared).
     fn filter_reference<const D: usize>(
         img: &RangeImage,
         values: &[[f32; D]],
@@ -247,16 +262,7 @@ mod tests {
                         (sr, sc, n) = (sr + dr as f32, sc + dc as f32, n + 1);
                     }
                 }
-                if n == 0 {
-                    break;
-                }
-                let inv = 1.0 / n as f32;
-                let ny = acc.map(|v| v * inv);
-                let (nr, nc) = (sr * inv, sc * inv);
-                let moved = d2(&ny, &y);
-                let spatial = (nr - yr).powi(2) + (nc - yc).powi(2);
-                (y, yr, yc) = (ny, nr, nc);
-                if moved < stop_v && spatial < 0.25 {
+                if !shift_window(&mut y, (&mut yr, &mut yc), acc, (sr, sc, n), stop_v) {
                     break;
                 }
             }
