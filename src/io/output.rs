@@ -513,7 +513,7 @@ impl TileWriter {
 
     /// Stitching: writes the tile's core `records` (run layout) with their *local* segment ids
     /// uncompressed to `spill_dir` (and its segment table beside them), to be written for
-    /// real by [`TileWriter::finish_deferred`] once the global ids are known. Uncompressed
+    /// real by [`TileWriter::write_deferred`] once the global ids are known. Uncompressed
     /// because the file is read back exactly once: compressing twice would double the
     /// output's dominant cost (LAZ coding).
     pub fn defer(
@@ -551,16 +551,10 @@ impl TileWriter {
 
     /// Writes a deferred tile into the staging directory `dir` (commit with
     /// [`PendingTile::commit`]) with local segment id `l` replaced by `ids[l - 1]`, reading
-    /// its uncompressed records once, in blocks, and deletes the deferred files. The segment
-    /// table gets the global id first and the local id in a `local_id` column.
-    pub fn finish_deferred(&self, dir: &Path, d: DeferredTile, ids: &[u64]) -> Result<PendingTile> {
-        let res = self.write_deferred(dir, &d, ids);
-        d.abandon();
-        res
-    }
-
-    /// Like [`TileWriter::finish_deferred`], but the deferred files stay (a resumable run
-    /// deletes them only once its journal records the written tile).
+    /// its uncompressed records once, in blocks. The segment table gets the global id first
+    /// and the local id in a `local_id` column. The deferred files stay: the caller deletes
+    /// them ([`DeferredTile::abandon`]) when it no longer needs them (a resumable run only
+    /// once its journal records the written tile).
     pub fn write_deferred(&self, dir: &Path, d: &DeferredTile, ids: &[u64]) -> Result<PendingTile> {
         use std::io::Read;
         let off = self.id_offset().ok_or_else(|| {
