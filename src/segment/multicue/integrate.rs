@@ -243,6 +243,17 @@ mod tests {
 
     use crate::segment::multicue::image::tests::flat_image as image;
 
+    /// One cue's segmentation of 1-D values.
+    fn cue<'a>(values: &'a [f32], labels: Vec<u32>, max: f32, veto: bool) -> CueSegments<'a> {
+        CueSegments {
+            values,
+            dim: 1,
+            labels,
+            max_dispersion: max,
+            veto,
+        }
+    }
+
     #[test]
     fn largest_acceptable_segment_first_and_remainders_regrouped() {
         // 4 × 10 pixels. Cue A: one segment over everything but with a high dispersion
@@ -258,27 +269,9 @@ mod tests {
         let lb: Vec<u32> = (0..n).map(|i| if i % cols < 6 { 1 } else { 2 }).collect();
         let lc: Vec<u32> = (0..n).map(|i| if i % cols >= 4 { 1 } else { 0 }).collect();
         let mut cues = vec![
-            CueSegments {
-                values: &va,
-                dim: 1,
-                labels: vec![1; n],
-                max_dispersion: 1.0,
-                veto: false,
-            },
-            CueSegments {
-                values: &vb,
-                dim: 1,
-                labels: lb,
-                max_dispersion: 1.0,
-                veto: false,
-            },
-            CueSegments {
-                values: &vc,
-                dim: 1,
-                labels: lc,
-                max_dispersion: 1.0,
-                veto: false,
-            },
+            cue(&va, vec![1; n], 1.0, false),
+            cue(&vb, lb, 1.0, false),
+            cue(&vc, lc, 1.0, false),
         ];
         let rules = Rules {
             min_coverage: 1.0,
@@ -302,13 +295,7 @@ mod tests {
     fn small_segments_end_the_integration() {
         let img = image(2, 4);
         let v = vec![0.0f32; 8];
-        let mut cues = vec![CueSegments {
-            values: &v,
-            dim: 1,
-            labels: vec![1, 1, 1, 1, 2, 2, 3, 3],
-            max_dispersion: 1.0,
-            veto: false,
-        }];
+        let mut cues = vec![cue(&v, vec![1, 1, 1, 1, 2, 2, 3, 3], 1.0, false)];
         let rules = Rules {
             min_coverage: 25.0,
             min_pixels: 1,
@@ -332,20 +319,8 @@ mod tests {
         let lc: Vec<u32> = (0..n).map(|i| if i % cols < 5 { 1 } else { 2 }).collect();
         let run = |veto: bool| {
             let mut cues = vec![
-                CueSegments {
-                    values: &vn,
-                    dim: 1,
-                    labels: vec![1; n],
-                    max_dispersion: 1.0,
-                    veto: false,
-                },
-                CueSegments {
-                    values: &vc,
-                    dim: 1,
-                    labels: lc.clone(),
-                    max_dispersion: 10.0,
-                    veto,
-                },
+                cue(&vn, vec![1; n], 1.0, false),
+                cue(&vc, lc.clone(), 10.0, veto),
             ];
             let rules = Rules {
                 min_coverage: 1.0,
