@@ -66,7 +66,7 @@ fn default_min_sample() -> u64 {
     30
 }
 fn default_context() -> f64 {
-    5.0
+    3.0
 }
 
 impl Default for LabelSection {
