@@ -126,6 +126,28 @@ impl RangeImage {
         Some(rr as usize * self.cols + cc as usize)
     }
 
+    /// The neighbour of `(r, c)` in direction `(dr, dc)`: the nearest pixel with a return, across
+    /// at most `gap` pixels without one (glass and dark paint return few echoes, and such
+    /// dropouts would otherwise cut a surface into pieces), with the angle between the two
+    /// beams; None when there is none that near or the image ends.
+    #[inline]
+    pub fn across(
+        &self,
+        r: usize,
+        c: usize,
+        dr: isize,
+        dc: isize,
+        gap: usize,
+    ) -> Option<(usize, f32)> {
+        for k in 1..=gap as isize + 1 {
+            let j = self.offset(r, c, k * dr, k * dc)?;
+            if self.valid(j) {
+                return Some((j, self.step(k * dr, k * dc)));
+            }
+        }
+        None
+    }
+
     /// The image of an organised scan: `rows × cols` points in `order`, in the sensor frame;
     /// `lab` optional CIELab colours, one per point. Points with a non-finite coordinate or
     /// at the origin are empty pixels. Columns are taken to span a full turn (spinning

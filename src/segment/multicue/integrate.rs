@@ -215,14 +215,9 @@ fn pieces(img: &RangeImage, px: &[u32], stamp: &mut [u32], now: u32, jump: Jump)
         while let Some(i) = stack.pop() {
             let (r, c) = (i / img.cols, i % img.cols);
             for (dr, dc) in [(0, 1), (0, -1), (1, 0), (-1, 0)] {
-                if let Some(j) = img.offset(r, c, dr, dc) {
+                if let Some((j, alpha)) = img.across(r, c, dr, dc, jump.max_gap_px) {
                     if stamp[j] == now
-                        && same_surface(
-                            img.range[i],
-                            img.range[j],
-                            img.step(dr, dc),
-                            jump.tan_theta,
-                        )
+                        && same_surface(img.range[i], img.range[j], alpha, jump.tan_theta)
                     {
                         stamp[j] = 0;
                         piece.push(j as u32);
@@ -277,7 +272,10 @@ mod tests {
             min_coverage: 1.0,
             min_pixels: 2,
         };
-        let jump = Jump { tan_theta: 0.1 };
+        let jump = Jump {
+            tan_theta: 0.1,
+            max_gap_px: 0,
+        };
         let out = integrate(&img, &mut cues, rules, jump);
         assert_eq!(out.segments, 2);
         assert_eq!(out.rejected, 1);
@@ -300,7 +298,15 @@ mod tests {
             min_coverage: 25.0,
             min_pixels: 1,
         };
-        let out = integrate(&img, &mut cues, rules, Jump { tan_theta: 0.1 });
+        let out = integrate(
+            &img,
+            &mut cues,
+            rules,
+            Jump {
+                tan_theta: 0.1,
+                max_gap_px: 0,
+            },
+        );
         assert_eq!(out.segments, 1);
         assert_eq!(out.labels, vec![1, 1, 1, 1, 0, 0, 0, 0]);
     }
@@ -326,7 +332,15 @@ mod tests {
                 min_coverage: 1.0,
                 min_pixels: 2,
             };
-            integrate(&img, &mut cues, rules, Jump { tan_theta: 0.1 })
+            integrate(
+                &img,
+                &mut cues,
+                rules,
+                Jump {
+                    tan_theta: 0.1,
+                    max_gap_px: 0,
+                },
+            )
         };
         // As the paper: the plane is accepted whole, the colours' segments lose their pixels.
         let paper = run(false);

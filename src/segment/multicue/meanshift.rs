@@ -32,6 +32,9 @@ pub struct Kernel {
 pub struct Jump {
     /// tan θ: the smallest angle between a beam and the line to its neighbour's return.
     pub tan_theta: f32,
+    /// Pixels without a return that neighbouring returns may lie across
+    /// ([`super::image::RangeImage::across`]).
+    pub max_gap_px: usize,
 }
 
 #[inline]
@@ -162,10 +165,9 @@ pub fn group<const D: usize>(
                 continue;
             }
             for (dr, dc) in [(0, 1), (1, 0)] {
-                let Some(j) = img.offset(r, c, dr, dc) else {
+                let Some((j, alpha)) = img.across(r, c, dr, dc, jump.max_gap_px) else {
                     continue;
                 };
-                let alpha = img.step(dr, dc);
                 if usable[j]
                     && same_surface(img.range[i], img.range[j], alpha, jump.tan_theta)
                     && d2(&filtered[i], &filtered[j]) < lim
@@ -324,7 +326,10 @@ mod tests {
             merge: 0.5,
         };
         let f = filter(&img, &v, &usable, k);
-        let jump = Jump { tan_theta: 0.1 };
+        let jump = Jump {
+            tan_theta: 0.1,
+            max_gap_px: 0,
+        };
         let (lab, n) = group(&img, &f, &usable, k, jump);
         assert_eq!(n, 2, "{lab:?}");
         assert!(lab[..cols / 2].iter().all(|&l| l == 1));
@@ -353,11 +358,71 @@ mod tests {
             merge: 0.5,
         };
         let f = filter(&img, &v, &usable, k);
-        let (lab, n) = group(&img, &f, &usable, k, Jump { tan_theta: 0.1 });
+        let (lab, n) = group(
+            &img,
+            &f,
+            &usable,
+            k,
+            Jump {
+                tan_theta: 0.1,
+                max_gap_px: 0,
+            },
+        );
         assert_eq!(n, 3);
         assert_eq!(lab[0], 0);
         assert_eq!(lab[1], 1);
         assert_eq!(lab[5], 2);
         assert_eq!(lab[6], 3);
+    }
+
+    /// A column without returns (glass, dark paint) cuts a surface with the paper's
+    /// 4-neighbours; with `max_gap_px` = 1 the returns on both sides join across it. A range
+    /// jump across a missing column still separates, and two missing columns are too wide.
+    #[test]
+    fn missing_returns_are_bridged_but_range_jumps_are_not() {
+        let (rows, cols) = (3, 16);
+        let mut img = flat_image(rows, cols);
+        for r in 0..rows {
+            let row = &mut img.range[r * cols..(r + 1) * cols];
+            row[4] = 0.0; // one missing column between 0-3 and 5-7
+            row[8] = 0.0; // one missing column, then a surface twice as far
+            for v in &mut row[9..12] {
+                *v = 20.0;
+            }
+            row[12] = 0.0; // two missing columns before 14-15 (at 20 m too)
+            row[13] = 0.0;
+            for v in &mut row[14..] {
+                *v = 20.0;
+            }
+        }
+        let usable: Vec<bool> = (0..rows * cols).map(|i| img.valid(i)).collect();
+        let v = vec![[0.0f32]; rows * cols];
+        let k = Kernel {
+            hs: 1,
+            hr: 1.0,
+            max_iter: 3,
+            merge: 0.5,
+        };
+        let f = filter(&img, &v, &usable, k);
+        let run = |max_gap_px| {
+            let jump = Jump {
+                tan_theta: 0.1,
+                max_gap_px,
+            };
+            group(&img, &f, &usable, k, jump)
+        };
+        let (strict, n) = run(0);
+        assert_eq!(n, 4, "{strict:?}");
+        assert_ne!(strict[3], strict[5]);
+        let (bridged, n) = run(1);
+        assert_eq!(n, 3, "{bridged:?}");
+        assert_eq!(bridged[3], bridged[5]);
+        assert_eq!(bridged[0], bridged[7]);
+        assert_ne!(bridged[7], bridged[9], "range jump across the gap");
+        assert_ne!(bridged[11], bridged[14], "two missing columns");
+        assert_eq!((bridged[4], bridged[8], bridged[12]), (0, 0, 0));
+        for r in 1..rows {
+            assert_eq!(bridged[r * cols + 5], bridged[5]);
+        }
     }
 }

@@ -51,6 +51,10 @@ pub struct MulticueParams {
     /// angle with the farther beam, degrees (Bogoslavskyi & Stachniss 2016 use 10° on
     /// ground-free scans; ground seen at a grazing angle needs less).
     pub min_angle_deg: f32,
+    /// Neighbouring returns connect across at most this many pixels without a return (0: the
+    /// paper's 4-neighbours only). Glass and dark surfaces drop returns; without bridging a
+    /// window's glass falls apart into pieces below `min_points`.
+    pub max_gap_px: usize,
     /// Integration: largest acceptable RMS spread of a range segment, metres.
     pub range_max_dispersion_m: f32,
     /// Largest acceptable spread of a normal segment, degrees.
@@ -83,6 +87,7 @@ impl Default for MulticueParams {
             colour_hr: 8.0,
             smooth_window_m: 0.3,
             min_angle_deg: 3.0,
+            max_gap_px: 1,
             range_max_dispersion_m: 0.5,
             normal_max_dispersion_deg: 12.0,
             colour_max_dispersion: 10.0,
@@ -113,6 +118,12 @@ impl MulticueParams {
         if nonneg.iter().any(|v| !(v.is_finite() && *v >= 0.0)) {
             return Err("segment.multicue: smooth_window_m and min_coverage_m must be >= 0".into());
         }
+        if self.max_gap_px > 8 {
+            return Err(format!(
+                "segment.multicue: max_gap_px must be at most 8, got {}",
+                self.max_gap_px
+            ));
+        }
         if !(self.min_angle_deg.is_finite() && (0.0..90.0).contains(&self.min_angle_deg)) {
             return Err("segment.multicue: min_angle_deg must be in [0, 90)".into());
         }
@@ -137,6 +148,7 @@ impl MulticueParams {
     fn jump(&self) -> Jump {
         Jump {
             tan_theta: self.min_angle_deg.to_radians().tan(),
+            max_gap_px: self.max_gap_px,
         }
     }
 }
@@ -467,6 +479,11 @@ mod tests {
             ..Default::default()
         };
         assert!(p.validate().is_err());
+        p = MulticueParams {
+            max_gap_px: 9,
+            ..Default::default()
+        };
+        assert!(p.validate().unwrap_err().contains("max_gap_px"));
     }
 
     #[test]
