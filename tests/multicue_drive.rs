@@ -86,10 +86,10 @@ fn multicue_drive_segments_every_scan_and_ties_them_into_world_segments() {
     assert!((world.result_segments as u64) * 5 < r.scan_segments);
     // Side by side with region growing, per kind of object: printed, not yet a gate. Issue
     // 22 asks for multicue at least as good as region growing; on this 16-ring drive it is
-    // not (2026-11-27, with the colour veto and one-pixel gaps bridged: vehicles and poles 0
-    // correct at 0.8 vs 2, 58 result segments vs 57; buildings 1 correct vs 53 — a window has
-    // 5-17 returns per scan here, below min_points, and the pieces that are segmented tie to
-    // their facade), so the issue stays open.
+    // not (2026-11-27, with the colour veto, one-pixel gaps bridged and the ties' plane check:
+    // vehicles and poles 0 correct at 0.8 vs 2, 61 result segments vs 57; buildings 2 correct
+    // vs 53, under 0 — a window has 5-17 returns per scan here, below min_points), so the
+    // issue stays open.
     for (name, classes) in [
         ("vehicles and poles", &[truth::VEHICLE, truth::POLE][..]),
         ("buildings", &[truth::BUILDING][..]),

@@ -136,6 +136,27 @@ impl Moments {
         Some((centroid, vals, vecs))
     }
 
+    /// Mean squared distance of the points to `plane`; None without points.
+    pub fn mean_sq_distance(&self, plane: &Plane) -> Option<f64> {
+        if self.n == 0 {
+            return None;
+        }
+        let inv = 1.0 / self.n as f64;
+        let m = self.s.map(|v| v * inv);
+        let n = plane.n;
+        // The plane in coordinates relative to `origin`: n·q = d0.
+        let d0 = plane.d - (0..3).map(|k| n[k] * self.origin[k]).sum::<f64>();
+        let off = (0..3).map(|k| n[k] * m[k]).sum::<f64>() - d0;
+        const K: [[usize; 3]; 3] = [[0, 1, 2], [1, 3, 4], [2, 4, 5]];
+        let mut var = 0.0;
+        for a in 0..3 {
+            for b in 0..3 {
+                var += n[a] * n[b] * (self.ss[K[a][b]] * inv - m[a] * m[b]);
+            }
+        }
+        Some(var.max(0.0) + off * off)
+    }
+
     /// Least-squares plane (smallest eigenvector through the centroid) and the RMS of the
     /// orthogonal residuals.
     pub fn plane(&self) -> Option<(Plane, f64)> {

@@ -15,6 +15,7 @@
 //! tile stitching then joins world segments across tile borders as for region growing.
 
 use super::meanshift::UnionFind;
+use crate::segment::features::{Moments, Plane};
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 
@@ -34,6 +35,12 @@ pub struct TieParams {
     /// of the smaller ("smaller": a piece lying mostly inside a segment of the next scan joins
     /// it, so a scan that splits an object does not break its chain along the drive).
     pub basis: TieBasis,
+    /// When the larger of two segments is a plane (RMS residual at most this, metres, and
+    /// spread at least ten times that along both in-plane axes), the smaller joins it only if
+    /// its points lie on that plane (RMS distance at most this): a window's glass a few
+    /// centimetres behind its façade shares the façade's voxels but is not the façade.
+    /// Non-planar or thin segments (vehicles, trees, poles) are not checked. 0: no check.
+    pub plane_tolerance_m: f64,
 }
 
 /// Which segment's seen voxels the shared voxels are compared with.
@@ -56,6 +63,8 @@ impl Default for TieParams {
             min_shared_voxels: 3,
             majority_fraction: 0.5,
             basis: TieBasis::Smaller,
+            // 5 cm: a façade's own scatter passes, a window set 10 cm back does not.
+            plane_tolerance_m: 0.05,
         }
     }
 }
@@ -67,6 +76,12 @@ impl TieParams {
             return Err(format!(
                 "segment.tie.voxel_m must be > 0, got {}",
                 self.voxel_m
+            ));
+        }
+        if !(self.plane_tolerance_m.is_finite() && self.plane_tolerance_m >= 0.0) {
+            return Err(format!(
+                "segment.tie.plane_tolerance_m must be >= 0, got {}",
+                self.plane_tolerance_m
             ));
         }
         if self.min_shared_voxels == 0 {
@@ -150,6 +165,42 @@ pub fn tie(
     entries.sort_unstable();
     entries.dedup();
     let nodes = node_value.len();
+    // Per node its points' moments and least-squares plane, for the plane check.
+    let tol = p.plane_tolerance_m;
+    let planes: Vec<(Moments, Option<Plane>)> = if tol > 0.0 {
+        let mut m = vec![Moments::new(origin); nodes];
+        for (i, &nd) in point_node.iter().enumerate() {
+            if nd != NONE {
+                m[nd as usize].add(&xyz[i]);
+            }
+        }
+        m.into_iter()
+            .map(|m| {
+                // Planar: flat (λ0) and wide along both in-plane axes (λ1 ≤ λ2), not a pole.
+                let flat = m
+                    .eigen()
+                    .is_some_and(|(_, l, _)| l[0].sqrt() <= tol && l[1].sqrt() >= 10.0 * tol);
+                let pl = m.plane().filter(|_| flat).map(|(pl, _)| pl);
+                (m, pl)
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
+    // Whether the pair may tie by the plane check (see `TieParams::plane_tolerance_m`).
+    let coplanar = |a: u32, b: u32| -> bool {
+        if planes.is_empty() {
+            return true;
+        }
+        let (a, b) = (&planes[a as usize], &planes[b as usize]);
+        let (big, small) = if a.0.n >= b.0.n { (a, b) } else { (b, a) };
+        big.1.as_ref().is_none_or(|plane| {
+            small
+                .0
+                .mean_sq_distance(plane)
+                .is_none_or(|d2| d2.sqrt() <= tol)
+        })
+    };
     let (mut seen_next, mut seen_prev) = (vec![0u32; nodes], vec![0u32; nodes]);
     let mut shared: HashMap<(u32, u32), u32> = HashMap::new();
     for vox in entries.chunk_by(|a, b| a.0 == b.0) {
@@ -181,7 +232,10 @@ pub fn tie(
             TieBasis::Larger => na.max(nb),
             TieBasis::Smaller => na.min(nb),
         } as f64;
-        if k as usize >= p.min_shared_voxels && k as f64 > p.majority_fraction * base {
+        if k as usize >= p.min_shared_voxels
+            && k as f64 > p.majority_fraction * base
+            && coplanar(a, b)
+        {
             uf.union(a as usize, b as usize);
             ties += 1;
         }
@@ -327,5 +381,73 @@ mod tests {
         );
         assert_eq!(st.ties, 1);
         assert_eq!(l[0], l[20]);
+    }
+
+    /// A window's glass 0.1 m behind its façade shares the façade's voxels: without the plane
+    /// check it joins the next scan's façade; with it, it stays apart while the façade's pieces
+    /// still tie. A piece inside a non-planar segment (a car) is not checked and joins.
+    #[test]
+    fn a_piece_off_a_planar_segment_does_not_join_it() {
+        let mut xyz = Vec::new();
+        let mut vals = Vec::new();
+        let window = |x: f64, z: f64| (1.0..2.5).contains(&x) && (1.0..2.5).contains(&z);
+        for (scan, seg) in [(1u64, 1u64), (2, 2)] {
+            for ix in 0..50 {
+                for iz in 0..30 {
+                    let (x, z) = (ix as f64 * 0.1 + 0.01, iz as f64 * 0.1 + 0.01);
+                    if scan == 1 && window(x, z) {
+                        xyz.push([x, 0.1, z]);
+                        vals.push(v(1, 3));
+                    } else {
+                        xyz.push([x, 0.0, z]);
+                        vals.push(v(scan, seg));
+                    }
+                }
+            }
+        }
+        // A car: a sphere of radius 1 at (10, 0, 1) in scan 2 (segment 5); in scan 1 a piece
+        // of its surface (segment 6).
+        for i in 0..400 {
+            let (u, w) = (i as f64 * 0.7, (i as f64 * 0.37).sin());
+            let r = (1.0 - w * w).sqrt();
+            let q = [10.0 + r * u.cos(), r * u.sin(), 1.0 + w];
+            xyz.push(q);
+            vals.push(v(2, 5));
+            if q[0] < 10.0 {
+                xyz.push([q[0] + 0.01, q[1], q[2]]);
+                vals.push(v(1, 6));
+            }
+        }
+        let all = vec![true; xyz.len()];
+        let run = |plane_tolerance_m| {
+            let p = TieParams {
+                plane_tolerance_m,
+                ..TieParams::default()
+            };
+            tie(&xyz, &vals, &all, &all, [0.0; 3], &p).0
+        };
+        let at = |l: &[u32], value: u64| l[vals.iter().position(|&x| x == value).unwrap()];
+        let loose = run(0.0);
+        assert_eq!(
+            at(&loose, v(1, 3)),
+            at(&loose, v(2, 2)),
+            "window joins the facade"
+        );
+        let strict = run(0.05);
+        assert_ne!(
+            at(&strict, v(1, 3)),
+            at(&strict, v(2, 2)),
+            "window stays apart"
+        );
+        assert_eq!(
+            at(&strict, v(1, 1)),
+            at(&strict, v(2, 2)),
+            "facade pieces tie"
+        );
+        assert_eq!(
+            at(&strict, v(1, 6)),
+            at(&strict, v(2, 5)),
+            "car piece joins the car"
+        );
     }
 }
