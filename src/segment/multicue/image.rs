@@ -402,6 +402,14 @@ fn range_of(p: &[f32; 3]) -> f32 {
 pub(crate) mod tests {
     use super::*;
 
+    /// The surface test of the unit tests: tan θ = 0.1 and the paper's 4-neighbours (no gap
+    /// bridging).
+    pub(crate) const STRICT: crate::segment::multicue::meanshift::Jump =
+        crate::segment::multicue::meanshift::Jump {
+            tan_theta: 0.1,
+            max_gap_px: 0,
+        };
+
     /// A flat `rows × cols` image for the mean-shift and integration tests: every pixel at
     /// range 10 (so every pixel covers the same), no wrap, beams 0.001 rad apart.
     pub(crate) fn flat_image(rows: usize, cols: usize) -> RangeImage {

@@ -236,7 +236,7 @@ fn pieces(img: &RangeImage, px: &[u32], stamp: &mut [u32], now: u32, jump: Jump)
 mod tests {
     use super::*;
 
-    use crate::segment::multicue::image::tests::flat_image as image;
+    use crate::segment::multicue::image::tests::{flat_image as image, STRICT};
 
     /// One cue's segmentation of 1-D values.
     fn cue<'a>(values: &'a [f32], labels: Vec<u32>, max: f32, veto: bool) -> CueSegments<'a> {
@@ -272,10 +272,7 @@ mod tests {
             min_coverage: 1.0,
             min_pixels: 2,
         };
-        let jump = Jump {
-            tan_theta: 0.1,
-            max_gap_px: 0,
-        };
+        let jump = STRICT;
         let out = integrate(&img, &mut cues, rules, jump);
         assert_eq!(out.segments, 2);
         assert_eq!(out.rejected, 1);
@@ -298,15 +295,7 @@ mod tests {
             min_coverage: 25.0,
             min_pixels: 1,
         };
-        let out = integrate(
-            &img,
-            &mut cues,
-            rules,
-            Jump {
-                tan_theta: 0.1,
-                max_gap_px: 0,
-            },
-        );
+        let out = integrate(&img, &mut cues, rules, STRICT);
         assert_eq!(out.segments, 1);
         assert_eq!(out.labels, vec![1, 1, 1, 1, 0, 0, 0, 0]);
     }
@@ -332,15 +321,7 @@ mod tests {
                 min_coverage: 1.0,
                 min_pixels: 2,
             };
-            integrate(
-                &img,
-                &mut cues,
-                rules,
-                Jump {
-                    tan_theta: 0.1,
-                    max_gap_px: 0,
-                },
-            )
+            integrate(&img, &mut cues, rules, STRICT)
         };
         // As the paper: the plane is accepted whole, the colours' segments lose their pixels.
         let paper = run(false);

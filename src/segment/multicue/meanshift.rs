@@ -231,7 +231,7 @@ impl UnionFind {
 mod tests {
     use super::*;
 
-    use crate::segment::multicue::image::tests::flat_image;
+    use crate::segment::multicue::image::tests::{flat_image, STRICT};
 
     /// The filter as first written: every window pixel through [`RangeImage::offset`] (the
     /// window's move, [`shift_window`], is shared).
@@ -326,10 +326,7 @@ mod tests {
             merge: 0.5,
         };
         let f = filter(&img, &v, &usable, k);
-        let jump = Jump {
-            tan_theta: 0.1,
-            max_gap_px: 0,
-        };
+        let jump = STRICT;
         let (lab, n) = group(&img, &f, &usable, k, jump);
         assert_eq!(n, 2, "{lab:?}");
         assert!(lab[..cols / 2].iter().all(|&l| l == 1));
@@ -358,16 +355,7 @@ mod tests {
             merge: 0.5,
         };
         let f = filter(&img, &v, &usable, k);
-        let (lab, n) = group(
-            &img,
-            &f,
-            &usable,
-            k,
-            Jump {
-                tan_theta: 0.1,
-                max_gap_px: 0,
-            },
-        );
+        let (lab, n) = group(&img, &f, &usable, k, STRICT);
         assert_eq!(n, 3);
         assert_eq!(lab[0], 0);
         assert_eq!(lab[1], 1);
@@ -406,8 +394,8 @@ mod tests {
         let f = filter(&img, &v, &usable, k);
         let run = |max_gap_px| {
             let jump = Jump {
-                tan_theta: 0.1,
                 max_gap_px,
+                ..STRICT
             };
             group(&img, &f, &usable, k, jump)
         };

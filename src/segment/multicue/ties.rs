@@ -177,11 +177,14 @@ pub fn tie(
         m.into_iter()
             .map(|m| {
                 // Planar: flat (λ0) and wide along both in-plane axes (λ1 ≤ λ2), not a pole.
-                let flat = m
+                let plane = m
                     .eigen()
-                    .is_some_and(|(_, l, _)| l[0].sqrt() <= tol && l[1].sqrt() >= 10.0 * tol);
-                let pl = m.plane().filter(|_| flat).map(|(pl, _)| pl);
-                (m, pl)
+                    .filter(|(_, l, _)| l[0].sqrt() <= tol && l[1].sqrt() >= 10.0 * tol)
+                    .map(|(c, _, v)| Plane {
+                        n: v[0],
+                        d: v[0][0] * c[0] + v[0][1] * c[1] + v[0][2] * c[2],
+                    });
+                (m, plane)
             })
             .collect()
     } else {
