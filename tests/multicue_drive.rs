@@ -86,10 +86,12 @@ fn multicue_drive_segments_every_scan_and_ties_them_into_world_segments() {
     assert!((world.result_segments as u64) * 5 < r.scan_segments);
     // Side by side with region growing, per kind of object: printed, not yet a gate. Issue
     // 22 asks for multicue at least as good as region growing; on this 16-ring drive it is
-    // not (2026-11-27, with the colour veto, one-pixel gaps bridged and the ties' plane check:
-    // vehicles and poles 0 correct at 0.8 vs 2, 61 result segments vs 57; buildings 2 correct
-    // vs 53, under 0 — a window has 5-17 returns per scan here, below min_points), so the
-    // issue stays open.
+    // not (2026-11-27, ties with the colour check, coplanar pieces, one shared voxel and a
+    // second scan asked: vehicles and poles 0 correct at 0.8 vs 2, under 1 vs 0; buildings 4
+    // correct vs 53, under 2 vs 0 — a window has 5-17 returns per scan here, below
+    // min_points, and this sensor's 2° rings let a scan's façade segment take in the car in
+    // front of it, so the façade is not planar and a door ties to it by the majority rule),
+    // so the issue stays open. On a 64-ring drive it is (README).
     for (name, classes) in [
         ("vehicles and poles", &[truth::VEHICLE, truth::POLE][..]),
         ("buildings", &[truth::BUILDING][..]),

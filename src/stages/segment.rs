@@ -248,14 +248,37 @@ impl SegmentStage {
             .collect();
         let t = &layout.transforms;
         let origin = [t.x.offset, t.y.offset, t.z.offset];
+        let tp = &self.section.tie;
+        let colour_check = tp.plane_tolerance_m > 0.0 && tp.colour_tolerance > 0.0;
+        let lab: Option<Vec<[f32; 3]>> = layout.rgb_offset().filter(|_| colour_check).map(|o| {
+            let rgb: Vec<[u16; 3]> = tile
+                .records
+                .chunks_exact(rl)
+                .map(|r| {
+                    let c = |k: usize| u16::from_le_bytes([r[o + 2 * k], r[o + 2 * k + 1]]);
+                    [c(0), c(1), c(2)]
+                })
+                .collect();
+            let eight = crate::segment::rgb_is_8bit(&rgb);
+            // Only segment members' colours are used (ground points are most of a tile).
+            rgb.iter()
+                .zip(member)
+                .map(|(&c, &m)| match m {
+                    true => crate::segment::features::rgb16_to_lab(c, eight).map(|v| v as f32),
+                    false => [0.0; 3],
+                })
+                .collect()
+        });
         let (labels, st) = ties::tie(
             &tile.xyz,
             &values,
             &observe,
             member,
+            lab.as_deref(),
             origin,
             &self.section.tie,
         );
+        drop(lab);
         let rgb = layout.rgb_offset().map(|o| (&tile.records[..], rl, o));
         let segments = describe(&tile.xyz, &labels, st.world_segments, rgb, origin);
         let segmented = set_table(tile, &labels, &segments);
@@ -269,6 +292,7 @@ impl SegmentStage {
                 "scan_segments": st.scan_segments,
                 "candidate_pairs": st.candidate_pairs,
                 "ties": st.ties,
+                "unconfirmed": st.unconfirmed,
             }),
         );
         tile.segments = labels;
@@ -296,10 +320,11 @@ impl Stage for SegmentStage {
         match self.section.method {
             SegmentMethod::RegionGrowing => 8 * self.section.params.k + 40,
             // Tying: the points' values (8 B), (voxel, scan, node) entries (16 B), node and
-            // label per point (8 B), the masks, and the segment sums and pair counts, which
-            // grow with segments, not points. Estimated, with slack; not yet measured by
+            // label per point (8 B), the CIELab colours when there is colour (12 B, and the
+            // 6 B of RGB they are made from), the masks, and the segment sums and pair counts,
+            // which grow with segments, not points. Estimated, with slack; not yet measured by
             // `tests/stage_memory.rs`.
-            SegmentMethod::Multicue => 64,
+            SegmentMethod::Multicue => 84,
         }
     }
     fn bytes_per_tile_point(&self) -> usize {

@@ -11,6 +11,13 @@
 //! `t` observed at all (any of its points, segmented or not). That is the rule of the tile
 //! stitching ([`crate::stitch::pairs`]) with voxels for shared points, counted in the space
 //! both scans saw, so a segment is not kept apart just because the next scan sees less of it.
+//!
+//! Planar surfaces have a sharper test than shared space (`plane_tolerance_m`,
+//! `colour_tolerance`): when the larger of two touching segments is planar, the smaller joins
+//! it exactly when it lies on that plane with that colour — then without a majority (a
+//! shadow moving along a façade splits it at a different place in each scan) and also
+//! between two segments of one scan (split by the image, not by the surface); a window's
+//! glass behind its façade, or the next building's façade in the same plane, stays apart.
 //! A union–find over the (scan, segment) pairs joins them transitively along the drive; the
 //! tile stitching then joins world segments across tile borders as for region growing.
 
@@ -41,6 +48,15 @@ pub struct TieParams {
     /// centimetres behind its façade shares the façade's voxels but is not the façade.
     /// Non-planar or thin segments (vehicles, trees, poles) are not checked. 0: no check.
     pub plane_tolerance_m: f64,
+    /// With the plane check, and when the points have colour: the smaller joins a planar
+    /// segment only if their mean CIELab colours differ by at most this (ΔE*ab). Two
+    /// buildings' façades in one plane share voxels where they meet; a scan's segments are
+    /// uniform in colour already (the integration's colour veto), so a colour step between
+    /// two of them on one plane is a boundary. 0: no check.
+    pub colour_tolerance: f64,
+    /// A world segment must hold segments of two scans or more, unless no other scan observed
+    /// its voxels; otherwise its points are left unsegmented.
+    pub confirm: bool,
 }
 
 /// Which segment's seen voxels the shared voxels are compared with.
@@ -60,11 +76,13 @@ impl Default for TieParams {
         // smaller than the ring spacing at range would rarely hold both.
         TieParams {
             voxel_m: 0.5,
-            min_shared_voxels: 3,
+            min_shared_voxels: 1,
             majority_fraction: 0.5,
             basis: TieBasis::Smaller,
             // 5 cm: a façade's own scatter passes, a window set 10 cm back does not.
             plane_tolerance_m: 0.05,
+            colour_tolerance: 10.0,
+            confirm: true,
         }
     }
 }
@@ -82,6 +100,12 @@ impl TieParams {
             return Err(format!(
                 "segment.tie.plane_tolerance_m must be >= 0, got {}",
                 self.plane_tolerance_m
+            ));
+        }
+        if !(self.colour_tolerance.is_finite() && self.colour_tolerance >= 0.0) {
+            return Err(format!(
+                "segment.tie.colour_tolerance must be >= 0, got {}",
+                self.colour_tolerance
             ));
         }
         if self.min_shared_voxels == 0 {
@@ -104,10 +128,12 @@ pub struct TieStats {
     pub scans: usize,
     /// Per-scan segments with points in the tile.
     pub scan_segments: usize,
-    /// Segment pairs of consecutive scans sharing a voxel.
+    /// Segment pairs of consecutive scans, or of one scan, sharing a voxel.
     pub candidate_pairs: usize,
     /// Pairs tied.
     pub ties: usize,
+    /// World segments of one scan, where other scans looked, left unsegmented (`confirm`).
+    pub unconfirmed: usize,
     /// World segments (after ties) with points in the tile.
     pub world_segments: usize,
 }
@@ -118,13 +144,15 @@ const NONE: u32 = u32::MAX;
 ///
 /// `values` are the points' `scan_segment` values (0: the point has none); `observe` the
 /// points whose voxels count as seen by their scan; `member` the points that belong to their
-/// segment (a subset of `observe`, e.g. the non-ground ones). Returns the world segment per
-/// point (0 = none; 1.. numbered by first point) and the figures.
+/// segment (a subset of `observe`, e.g. the non-ground ones); `lab` the points' CIELab colours
+/// when they have colour. Returns the world segment per point (0 = none; 1.. numbered by first
+/// point) and the figures.
 pub fn tie(
     xyz: &[[f64; 3]],
     values: &[u64],
     observe: &[bool],
     member: &[bool],
+    lab: Option<&[[f32; 3]]>,
     origin: [f64; 3],
     p: &TieParams,
 ) -> (Vec<u32>, TieStats) {
@@ -165,7 +193,7 @@ pub fn tie(
     entries.sort_unstable();
     entries.dedup();
     let nodes = node_value.len();
-    // Per node its points' moments and least-squares plane, for the plane check.
+    // Per node its points' moments, least-squares plane and mean colour, for the plane check.
     let tol = p.plane_tolerance_m;
     let planes: Vec<(Moments, Option<Plane>)> = if tol > 0.0 {
         let mut m = vec![Moments::new(origin); nodes];
@@ -190,25 +218,63 @@ pub fn tie(
     } else {
         Vec::new()
     };
-    // Whether the pair may tie by the plane check (see `TieParams::plane_tolerance_m`).
-    let coplanar = |a: u32, b: u32| -> bool {
-        if planes.is_empty() {
-            return true;
+    let colours: Vec<[f64; 3]> = match lab {
+        Some(lab) if !planes.is_empty() && p.colour_tolerance > 0.0 => {
+            let mut sum = vec![[0.0f64; 3]; nodes];
+            for (i, &nd) in point_node.iter().enumerate() {
+                if nd != NONE {
+                    let s = &mut sum[nd as usize];
+                    for c in 0..3 {
+                        s[c] += lab[i][c] as f64;
+                    }
+                }
+            }
+            sum.iter()
+                .zip(&planes)
+                .map(|(s, (m, _))| s.map(|v| v / m.n.max(1) as f64))
+                .collect()
         }
-        let (a, b) = (&planes[a as usize], &planes[b as usize]);
-        let (big, small) = if a.0.n >= b.0.n { (a, b) } else { (b, a) };
-        big.1.as_ref().is_none_or(|plane| {
-            small
-                .0
-                .mean_sq_distance(plane)
-                .is_none_or(|d2| d2.sqrt() <= tol)
-        })
+        _ => Vec::new(),
+    };
+    // The plane check of a pair (see `TieParams::plane_tolerance_m` and `colour_tolerance`):
+    // `None` when the larger is not planar (not checked), else whether the smaller lies on its
+    // plane with its colour.
+    let on_plane = |a: u32, b: u32| -> Option<bool> {
+        if planes.is_empty() {
+            return None;
+        }
+        let (a, b) = (a as usize, b as usize);
+        let (big, small) = if planes[a].0.n >= planes[b].0.n {
+            (a, b)
+        } else {
+            (b, a)
+        };
+        let plane = planes[big].1.as_ref()?;
+        let near = planes[small]
+            .0
+            .mean_sq_distance(plane)
+            .is_none_or(|d2| d2.sqrt() <= tol);
+        let same_colour = colours.is_empty() || {
+            let (x, y) = (colours[big], colours[small]);
+            let d2: f64 = (0..3).map(|c| (x[c] - y[c]).powi(2)).sum();
+            d2.sqrt() <= p.colour_tolerance
+        };
+        Some(near && same_colour)
     };
     let (mut seen_next, mut seen_prev) = (vec![0u32; nodes], vec![0u32; nodes]);
     let mut shared: HashMap<(u32, u32), u32> = HashMap::new();
+    let mut same_scan: HashMap<(u32, u32), u32> = HashMap::new();
     for vox in entries.chunk_by(|a, b| a.0 == b.0) {
         // Scan ranks ascend within the voxel: each run is one scan.
         let runs: Vec<&[(u64, u32, u32)]> = vox.chunk_by(|a, b| a.1 == b.1).collect();
+        for run in &runs {
+            let segs: Vec<u32> = run.iter().map(|e| e.2).filter(|&x| x != NONE).collect();
+            for (i, &a) in segs.iter().enumerate() {
+                for &b in &segs[i + 1..] {
+                    *same_scan.entry((a, b)).or_default() += 1;
+                }
+            }
+        }
         for w in runs.windows(2) {
             let (s, t) = (w[0], w[1]);
             if t[0].1 != s[0].1 + 1 {
@@ -235,14 +301,44 @@ pub fn tie(
             TieBasis::Larger => na.max(nb),
             TieBasis::Smaller => na.min(nb),
         } as f64;
-        if k as usize >= p.min_shared_voxels
-            && k as f64 > p.majority_fraction * base
-            && coplanar(a, b)
-        {
+        // A piece on a planar segment's plane, with its colour, is that surface wherever they
+        // touch: no majority asked. A scan splits a façade where something in front of it
+        // shadows it, and the shadow moves with the vehicle, so consecutive scans split it at
+        // different places and their pieces overlap too little for a majority.
+        let tied = match on_plane(a, b) {
+            Some(ok) => ok,
+            None => k as usize >= p.min_shared_voxels && k as f64 > p.majority_fraction * base,
+        };
+        if tied {
             uf.union(a as usize, b as usize);
             ties += 1;
         }
     }
+    // Two segments of one scan that touch are separate because the scan's image did not
+    // connect them (a gap, an occluder in front): on one plane with one colour they are the
+    // same surface too. Nothing else joins segments of one scan.
+    let mut same: Vec<((u32, u32), u32)> = same_scan.into_iter().collect();
+    same.sort_unstable();
+    for &((a, b), _) in &same {
+        if on_plane(a, b) == Some(true) {
+            uf.union(a as usize, b as usize);
+            ties += 1;
+        }
+    }
+    // Which world segments more than one scan found, and which lie where another scan looked.
+    let mut first_scan = vec![u64::MAX; nodes];
+    let (mut several, mut observed) = (vec![false; nodes], vec![false; nodes]);
+    for nd in 0..nodes {
+        let r = uf.find(nd);
+        let sc = node_value[nd] >> SEGMENT_BITS;
+        if first_scan[r] == u64::MAX {
+            first_scan[r] = sc;
+        } else if first_scan[r] != sc {
+            several[r] = true;
+        }
+        observed[r] |= seen_next[nd] + seen_prev[nd] > 0;
+    }
+    let mut unconfirmed = 0;
     let mut world = vec![0u32; nodes];
     let mut next = 0u32;
     let mut labels = vec![0u32; n];
@@ -251,6 +347,17 @@ pub fn tie(
             continue;
         }
         let root = uf.find(nd as usize);
+        // A segment one scan found where its neighbours looked and found nothing like it is
+        // a piece of that scan's own making (a few returns at an edge, split off by its
+        // image), not a surface: the drive sees every surface from several scans. Kept where
+        // no other scan looked (the drive's ends, a recording of one scan).
+        if p.confirm && !several[root] && observed[root] {
+            if world[root] == 0 {
+                unconfirmed += 1;
+                world[root] = u32::MAX;
+            }
+            continue;
+        }
         if world[root] == 0 {
             next += 1;
             world[root] = next;
@@ -260,8 +367,9 @@ pub fn tie(
     let stats = TieStats {
         scans: scans.len(),
         scan_segments: nodes,
-        candidate_pairs: pairs.len(),
+        candidate_pairs: pairs.len() + same.len(),
         ties,
+        unconfirmed,
         world_segments: next as usize,
     };
     (labels, stats)
@@ -293,12 +401,26 @@ mod tests {
                 vals.push(v(scan, seg));
             }
         }
-        // Scan 4 touches the wall's end with one point of another segment.
-        xyz.push([9.8, 0.0, 1.0]);
-        vals.push(v(4, 9));
+        // Scan 4 touches the wall's end with another segment that runs on past it, where
+        // scans 3 and 6 saw the ground (their unsegmented points): one voxel of four shared.
+        for k in 0..4 {
+            xyz.push([9.8 + 0.5 * k as f64, 0.0, 1.0]);
+            vals.push(v(4, 9));
+        }
+        for scan in [3, 6] {
+            for k in 1..4 {
+                xyz.push([9.8 + 0.5 * k as f64, 0.0, 1.1]);
+                vals.push(v(scan, 0));
+            }
+        }
         let n = xyz.len();
         let all = vec![true; n];
-        let (labels, st) = tie(&xyz, &vals, &all, &all, [0.0; 3], &TieParams::default());
+        // (The stray is one scan's segment where others looked: see the next test.)
+        let p = TieParams {
+            confirm: false,
+            ..TieParams::default()
+        };
+        let (labels, st) = tie(&xyz, &vals, &all, &all, None, [0.0; 3], &p);
         assert_eq!(st.scans, 3);
         assert_eq!(st.scan_segments, 6);
         let wall = labels[0];
@@ -306,8 +428,51 @@ mod tests {
         let pole = labels[120];
         assert!(pole != wall && labels[120..140].iter().all(|&l| l == pole));
         assert!(labels[140] != wall && labels[140] != pole);
+        assert!(labels[140..144].iter().all(|&l| l == labels[140]));
         assert_eq!(st.world_segments, 3);
         assert_eq!(wall, 1, "numbered by first point");
+    }
+
+    /// A segment found by one scan only, in voxels the next scan observed, is left
+    /// unsegmented; one in voxels no other scan observed stays, and so does a segment that
+    /// ties across scans.
+    #[test]
+    fn a_segment_needs_a_second_scan_where_one_looked() {
+        let (mut xyz, mut vals) = (Vec::new(), Vec::new());
+        for (scan, seg) in [(1u64, 1u64), (2, 1)] {
+            for k in 0..20 {
+                xyz.push([k as f64 * 0.2, 0.0, 0.0]);
+                vals.push(v(scan, seg));
+            }
+        }
+        // Scan 1 only: a piece at x = 10 that scan 2 saw unsegmented, one at x = 20 it missed.
+        for k in 0..12 {
+            xyz.push([10.0 + k as f64 * 0.05, 0.0, 0.0]);
+            vals.push(v(1, 2));
+            xyz.push([20.0 + k as f64 * 0.05, 0.0, 0.0]);
+            vals.push(v(1, 3));
+        }
+        xyz.push([10.1, 0.0, 0.0]);
+        vals.push(v(2, 0));
+        let all = vec![true; xyz.len()];
+        let run = |confirm| {
+            let p = TieParams {
+                confirm,
+                ..TieParams::default()
+            };
+            tie(&xyz, &vals, &all, &all, None, [0.0; 3], &p)
+        };
+        let at = |l: &[u32], value: u64| l[vals.iter().position(|&x| x == value).unwrap()];
+        let (l, st) = run(true);
+        assert_eq!(st.unconfirmed, 1);
+        assert_ne!(at(&l, v(1, 1)), 0);
+        assert_eq!(at(&l, v(1, 1)), at(&l, v(2, 1)));
+        assert_eq!(at(&l, v(1, 2)), 0, "found by one scan where another looked");
+        assert_ne!(at(&l, v(1, 3)), 0, "no other scan looked there");
+        assert_eq!(st.world_segments, 2);
+        let (l, st) = run(false);
+        assert_ne!(at(&l, v(1, 2)), 0);
+        assert_eq!((st.unconfirmed, st.world_segments), (0, 3));
     }
 
     /// Points without a value, not observed, or not members get no segment; segment 0 of a
@@ -323,13 +488,14 @@ mod tests {
             &vals,
             &observe,
             &member,
+            None,
             [0.0; 3],
             &TieParams::default(),
         );
         assert_eq!(labels, vec![0, 0, 0, 0]);
         assert_eq!(st.world_segments, 0);
         assert_eq!(st.scans, 1);
-        let (labels, _) = tie(&[], &[], &[], &[], [0.0; 3], &TieParams::default());
+        let (labels, _) = tie(&[], &[], &[], &[], None, [0.0; 3], &TieParams::default());
         assert!(labels.is_empty());
     }
 
@@ -352,6 +518,7 @@ mod tests {
         let with = |basis, majority_fraction| TieParams {
             basis,
             majority_fraction,
+            confirm: false,
             ..TieParams::default()
         };
         let (l, st) = tie(
@@ -359,6 +526,7 @@ mod tests {
             &vals,
             &all,
             &all,
+            None,
             [0.0; 3],
             &with(TieBasis::Larger, 0.5),
         );
@@ -369,6 +537,7 @@ mod tests {
             &vals,
             &all,
             &all,
+            None,
             [0.0; 3],
             &with(TieBasis::Larger, 0.3),
         );
@@ -379,6 +548,7 @@ mod tests {
             &vals,
             &all,
             &all,
+            None,
             [0.0; 3],
             &with(TieBasis::Smaller, 0.9),
         );
@@ -427,7 +597,7 @@ mod tests {
                 plane_tolerance_m,
                 ..TieParams::default()
             };
-            tie(&xyz, &vals, &all, &all, [0.0; 3], &p).0
+            tie(&xyz, &vals, &all, &all, None, [0.0; 3], &p).0
         };
         let at = |l: &[u32], value: u64| l[vals.iter().position(|&x| x == value).unwrap()];
         let loose = run(0.0);
@@ -452,5 +622,68 @@ mod tests {
             at(&strict, v(2, 5)),
             "car piece joins the car"
         );
+    }
+
+    /// Points of a wall in the plane y = 0 over `x0..x1`, 0..3 m high, every 0.1 m.
+    fn wall(x0: f64, x1: f64, value: u64, xyz: &mut Vec<[f64; 3]>, vals: &mut Vec<u64>) {
+        let mut x = x0 + 0.01;
+        while x < x1 {
+            for iz in 0..30 {
+                xyz.push([x, 0.0, iz as f64 * 0.1 + 0.01]);
+                vals.push(value);
+            }
+            x += 0.1;
+        }
+    }
+
+    /// Two buildings' façades in one plane, meeting at x = 5: their pieces share voxels there
+    /// but differ in colour, so only the colour check keeps them apart. The first façade is
+    /// split where a shadow falls, at x = 2 in scan 1 and x = 3 in scan 2: the pieces of
+    /// consecutive scans overlap too little for a majority but tie as one plane and colour.
+    /// Scan 1 splits the second façade too, at x = 8.6, beyond what scan 2 saw: its pieces
+    /// tie with each other.
+    #[test]
+    fn coplanar_pieces_tie_by_colour_and_touch() {
+        let (mut xyz, mut vals) = (Vec::new(), Vec::new());
+        wall(0.0, 2.0, v(1, 1), &mut xyz, &mut vals);
+        wall(2.0, 5.0, v(1, 2), &mut xyz, &mut vals);
+        wall(0.0, 3.0, v(2, 1), &mut xyz, &mut vals);
+        wall(3.0, 5.0, v(2, 2), &mut xyz, &mut vals);
+        let first = xyz.len();
+        wall(5.0, 8.6, v(1, 3), &mut xyz, &mut vals);
+        wall(8.6, 10.0, v(1, 5), &mut xyz, &mut vals);
+        wall(4.8, 7.0, v(2, 3), &mut xyz, &mut vals);
+        let lab: Vec<[f32; 3]> = (0..xyz.len())
+            .map(|i| {
+                if i < first {
+                    [80.0, 5.0, 20.0]
+                } else {
+                    [60.0, 10.0, 40.0]
+                }
+            })
+            .collect();
+        let all = vec![true; xyz.len()];
+        let run = |colour_tolerance, lab| {
+            let p = TieParams {
+                colour_tolerance,
+                min_shared_voxels: 1,
+                ..TieParams::default()
+            };
+            tie(&xyz, &vals, &all, &all, lab, [0.0; 3], &p).0
+        };
+        let at = |l: &[u32], value: u64| l[vals.iter().position(|&x| x == value).unwrap()];
+        let l = run(10.0, Some(&lab[..]));
+        let one = at(&l, v(1, 1));
+        for piece in [v(1, 2), v(2, 1), v(2, 2)] {
+            assert_eq!(at(&l, piece), one, "{piece:x}: one facade");
+        }
+        assert_ne!(at(&l, v(2, 3)), one, "the neighbour's facade stays apart");
+        assert_eq!(at(&l, v(1, 3)), at(&l, v(2, 3)));
+        // Scan 1's piece beyond what scan 2 saw touches only scan 1's other piece.
+        assert_eq!(at(&l, v(1, 5)), at(&l, v(1, 3)), "pieces of one scan");
+        // Without colour (or with the check off) the shared voxels at x = 5 join them.
+        for l in [run(10.0, None), run(0.0, Some(&lab[..]))] {
+            assert_eq!(at(&l, v(2, 3)), at(&l, v(1, 1)));
+        }
     }
 }
