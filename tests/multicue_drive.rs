@@ -89,8 +89,8 @@ fn multicue_drive_segments_every_scan_and_ties_them_into_world_segments() {
     // not (2026-11-27, ties with the colour check, coplanar pieces, one shared voxel and a
     // second scan asked: vehicles and poles 0 correct at 0.8 vs 2, under 1 vs 0; buildings 4
     // correct vs 53, under 2 vs 0 — a window has 5-17 returns per scan here, below
-    // min_points, and this sensor's 2° rings let a scan's façade segment take in the car in
-    // front of it, so the façade is not planar and a door ties to it by the majority rule),
+    // min_points, and a scan's façade segment takes in the footpath and the grey car parked
+    // on it, so the façade is not planar and a door ties to it by the majority rule),
     // so the issue stays open. On a 64-ring drive it is (README).
     for (name, classes) in [
         ("vehicles and poles", &[truth::VEHICLE, truth::POLE][..]),
