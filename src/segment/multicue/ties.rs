@@ -193,53 +193,130 @@ pub fn tie(
     entries.sort_unstable();
     entries.dedup();
     let nodes = node_value.len();
-    // Per node its points' moments, least-squares plane and mean colour, for the plane check.
-    let tol = p.plane_tolerance_m;
-    let planes: Vec<(Moments, Option<Plane>)> = if tol > 0.0 {
-        let mut m = vec![Moments::new(origin); nodes];
-        for (i, &nd) in point_node.iter().enumerate() {
-            if nd != NONE {
-                m[nd as usize].add(&xyz[i]);
-            }
+    let surfaces = Surfaces::new(xyz, &point_node, lab, nodes, origin, p);
+    let Overlaps {
+        seen_next,
+        seen_prev,
+        pairs,
+        same,
+    } = Overlaps::count(&entries, nodes);
+    let mut uf = UnionFind::new(nodes);
+    let mut ties = 0;
+    for &((a, b), k) in &pairs {
+        let (na, nb) = (seen_next[a as usize], seen_prev[b as usize]);
+        let base = match p.basis {
+            TieBasis::Larger => na.max(nb),
+            TieBasis::Smaller => na.min(nb),
+        } as f64;
+        // A piece on a planar segment's plane, with its colour, is that surface wherever they
+        // touch: no majority asked. A scan splits a façade where something in front of it
+        // shadows it, and the shadow moves with the vehicle, so consecutive scans split it at
+        // different places and their pieces overlap too little for a majority.
+        let tied = match surfaces.on_plane(a, b) {
+            Some(ok) => ok,
+            None => k as usize >= p.min_shared_voxels && k as f64 > p.majority_fraction * base,
+        };
+        if tied {
+            uf.union(a as usize, b as usize);
+            ties += 1;
         }
-        m.into_iter()
-            .map(|m| {
-                // Planar: flat (λ0) and wide along both in-plane axes (λ1 ≤ λ2), not a pole.
-                let plane = m
-                    .eigen()
-                    .filter(|(_, l, _)| l[0].sqrt() <= tol && l[1].sqrt() >= 10.0 * tol)
-                    .map(|(c, _, v)| Plane {
-                        n: v[0],
-                        d: v[0][0] * c[0] + v[0][1] * c[1] + v[0][2] * c[2],
-                    });
-                (m, plane)
-            })
-            .collect()
-    } else {
-        Vec::new()
+    }
+    // Two segments of one scan that touch are separate because the scan's image did not
+    // connect them (a gap, an occluder in front): on one plane with one colour they are the
+    // same surface too. Nothing else joins segments of one scan.
+    for &((a, b), _) in &same {
+        if surfaces.on_plane(a, b) == Some(true) {
+            uf.union(a as usize, b as usize);
+            ties += 1;
+        }
+    }
+    let seen: Vec<bool> = (0..nodes)
+        .map(|nd| seen_next[nd] + seen_prev[nd] > 0)
+        .collect();
+    let (labels, next, unconfirmed) = world_labels(&mut uf, &point_node, &node_value, &seen, p);
+    let stats = TieStats {
+        scans: scans.len(),
+        scan_segments: nodes,
+        candidate_pairs: pairs.len() + same.len(),
+        ties,
+        unconfirmed,
+        world_segments: next as usize,
     };
-    let colours: Vec<[f64; 3]> = match lab {
-        Some(lab) if !planes.is_empty() && p.colour_tolerance > 0.0 => {
-            let mut sum = vec![[0.0f64; 3]; nodes];
+    (labels, stats)
+}
+
+/// Per node: its points' moments, least-squares plane if planar, and mean colour, for the
+/// plane check (see [`TieParams::plane_tolerance_m`] and [`TieParams::colour_tolerance`]).
+struct Surfaces {
+    planes: Vec<(Moments, Option<Plane>)>,
+    colours: Vec<[f64; 3]>,
+    tol: f64,
+    colour_tol: f64,
+}
+
+impl Surfaces {
+    fn new(
+        xyz: &[[f64; 3]],
+        point_node: &[u32],
+        lab: Option<&[[f32; 3]]>,
+        nodes: usize,
+        origin: [f64; 3],
+        p: &TieParams,
+    ) -> Self {
+        let tol = p.plane_tolerance_m;
+        let planes: Vec<(Moments, Option<Plane>)> = if tol > 0.0 {
+            let mut m = vec![Moments::new(origin); nodes];
             for (i, &nd) in point_node.iter().enumerate() {
                 if nd != NONE {
-                    let s = &mut sum[nd as usize];
-                    for c in 0..3 {
-                        s[c] += lab[i][c] as f64;
-                    }
+                    m[nd as usize].add(&xyz[i]);
                 }
             }
-            sum.iter()
-                .zip(&planes)
-                .map(|(s, (m, _))| s.map(|v| v / m.n.max(1) as f64))
+            m.into_iter()
+                .map(|m| {
+                    // Planar: flat (λ0) and wide along both in-plane axes (λ1 ≤ λ2), not a pole.
+                    let plane = m
+                        .eigen()
+                        .filter(|(_, l, _)| l[0].sqrt() <= tol && l[1].sqrt() >= 10.0 * tol)
+                        .map(|(c, _, v)| Plane {
+                            n: v[0],
+                            d: v[0][0] * c[0] + v[0][1] * c[1] + v[0][2] * c[2],
+                        });
+                    (m, plane)
+                })
                 .collect()
+        } else {
+            Vec::new()
+        };
+        let colours: Vec<[f64; 3]> = match lab {
+            Some(lab) if !planes.is_empty() && p.colour_tolerance > 0.0 => {
+                let mut sum = vec![[0.0f64; 3]; nodes];
+                for (i, &nd) in point_node.iter().enumerate() {
+                    if nd != NONE {
+                        let s = &mut sum[nd as usize];
+                        for c in 0..3 {
+                            s[c] += lab[i][c] as f64;
+                        }
+                    }
+                }
+                sum.iter()
+                    .zip(&planes)
+                    .map(|(s, (m, _))| s.map(|v| v / m.n.max(1) as f64))
+                    .collect()
+            }
+            _ => Vec::new(),
+        };
+        Surfaces {
+            planes,
+            colours,
+            tol,
+            colour_tol: p.colour_tolerance,
         }
-        _ => Vec::new(),
-    };
-    // The plane check of a pair (see `TieParams::plane_tolerance_m` and `colour_tolerance`):
-    // `None` when the larger is not planar (not checked), else whether the smaller lies on its
-    // plane with its colour.
-    let on_plane = |a: u32, b: u32| -> Option<bool> {
+    }
+
+    /// The plane check of a pair: `None` when the larger is not planar (or the check is off),
+    /// else whether the smaller lies on its plane with its colour.
+    fn on_plane(&self, a: u32, b: u32) -> Option<bool> {
+        let planes = &self.planes;
         if planes.is_empty() {
             return None;
         }
@@ -253,78 +330,85 @@ pub fn tie(
         let near = planes[small]
             .0
             .mean_sq_distance(plane)
-            .is_none_or(|d2| d2.sqrt() <= tol);
-        let same_colour = colours.is_empty() || {
-            let (x, y) = (colours[big], colours[small]);
+            .is_none_or(|d2| d2.sqrt() <= self.tol);
+        let same_colour = self.colours.is_empty() || {
+            let (x, y) = (self.colours[big], self.colours[small]);
             let d2: f64 = (0..3).map(|c| (x[c] - y[c]).powi(2)).sum();
-            d2.sqrt() <= p.colour_tolerance
+            d2.sqrt() <= self.colour_tol
         };
         Some(near && same_colour)
-    };
-    let (mut seen_next, mut seen_prev) = (vec![0u32; nodes], vec![0u32; nodes]);
-    let mut shared: HashMap<(u32, u32), u32> = HashMap::new();
-    let mut same_scan: HashMap<(u32, u32), u32> = HashMap::new();
-    for vox in entries.chunk_by(|a, b| a.0 == b.0) {
-        // Scan ranks ascend within the voxel: each run is one scan.
-        let runs: Vec<&[(u64, u32, u32)]> = vox.chunk_by(|a, b| a.1 == b.1).collect();
-        for run in &runs {
-            let segs: Vec<u32> = run.iter().map(|e| e.2).filter(|&x| x != NONE).collect();
-            for (i, &a) in segs.iter().enumerate() {
-                for &b in &segs[i + 1..] {
-                    *same_scan.entry((a, b)).or_default() += 1;
+    }
+}
+
+/// Voxels shared by segments, from the sorted, deduplicated (voxel, scan rank, node) entries.
+struct Overlaps {
+    /// Per node, its voxels the next scan observed …
+    seen_next: Vec<u32>,
+    /// … and those the previous scan observed.
+    seen_prev: Vec<u32>,
+    /// Segment pairs of consecutive scans and their shared voxels, sorted.
+    pairs: Vec<((u32, u32), u32)>,
+    /// Segment pairs of one scan and their shared voxels, sorted.
+    same: Vec<((u32, u32), u32)>,
+}
+
+impl Overlaps {
+    fn count(entries: &[(u64, u32, u32)], nodes: usize) -> Self {
+        let (mut seen_next, mut seen_prev) = (vec![0u32; nodes], vec![0u32; nodes]);
+        let mut shared: HashMap<(u32, u32), u32> = HashMap::new();
+        let mut same_scan: HashMap<(u32, u32), u32> = HashMap::new();
+        for vox in entries.chunk_by(|a, b| a.0 == b.0) {
+            // Scan ranks ascend within the voxel: each run is one scan.
+            let runs: Vec<&[(u64, u32, u32)]> = vox.chunk_by(|a, b| a.1 == b.1).collect();
+            for run in &runs {
+                let segs: Vec<u32> = run.iter().map(|e| e.2).filter(|&x| x != NONE).collect();
+                for (i, &a) in segs.iter().enumerate() {
+                    for &b in &segs[i + 1..] {
+                        *same_scan.entry((a, b)).or_default() += 1;
+                    }
                 }
             }
-        }
-        for w in runs.windows(2) {
-            let (s, t) = (w[0], w[1]);
-            if t[0].1 != s[0].1 + 1 {
-                continue;
-            }
-            for a in s.iter().filter(|e| e.2 != NONE) {
-                seen_next[a.2 as usize] += 1;
+            for w in runs.windows(2) {
+                let (s, t) = (w[0], w[1]);
+                if t[0].1 != s[0].1 + 1 {
+                    continue;
+                }
+                for a in s.iter().filter(|e| e.2 != NONE) {
+                    seen_next[a.2 as usize] += 1;
+                    for b in t.iter().filter(|e| e.2 != NONE) {
+                        *shared.entry((a.2, b.2)).or_default() += 1;
+                    }
+                }
                 for b in t.iter().filter(|e| e.2 != NONE) {
-                    *shared.entry((a.2, b.2)).or_default() += 1;
+                    seen_prev[b.2 as usize] += 1;
                 }
             }
-            for b in t.iter().filter(|e| e.2 != NONE) {
-                seen_prev[b.2 as usize] += 1;
-            }
         }
-    }
-    let mut uf = UnionFind::new(nodes);
-    let mut pairs: Vec<((u32, u32), u32)> = shared.into_iter().collect();
-    pairs.sort_unstable();
-    let mut ties = 0;
-    for &((a, b), k) in &pairs {
-        let (na, nb) = (seen_next[a as usize], seen_prev[b as usize]);
-        let base = match p.basis {
-            TieBasis::Larger => na.max(nb),
-            TieBasis::Smaller => na.min(nb),
-        } as f64;
-        // A piece on a planar segment's plane, with its colour, is that surface wherever they
-        // touch: no majority asked. A scan splits a façade where something in front of it
-        // shadows it, and the shadow moves with the vehicle, so consecutive scans split it at
-        // different places and their pieces overlap too little for a majority.
-        let tied = match on_plane(a, b) {
-            Some(ok) => ok,
-            None => k as usize >= p.min_shared_voxels && k as f64 > p.majority_fraction * base,
+        let sorted = |m: HashMap<(u32, u32), u32>| {
+            let mut v: Vec<((u32, u32), u32)> = m.into_iter().collect();
+            v.sort_unstable();
+            v
         };
-        if tied {
-            uf.union(a as usize, b as usize);
-            ties += 1;
+        Overlaps {
+            seen_next,
+            seen_prev,
+            pairs: sorted(shared),
+            same: sorted(same_scan),
         }
     }
-    // Two segments of one scan that touch are separate because the scan's image did not
-    // connect them (a gap, an occluder in front): on one plane with one colour they are the
-    // same surface too. Nothing else joins segments of one scan.
-    let mut same: Vec<((u32, u32), u32)> = same_scan.into_iter().collect();
-    same.sort_unstable();
-    for &((a, b), _) in &same {
-        if on_plane(a, b) == Some(true) {
-            uf.union(a as usize, b as usize);
-            ties += 1;
-        }
-    }
+}
+
+/// World segment per point from the union–find over nodes (numbered by first point), the
+/// number of world segments, and how many were left unsegmented by [`TieParams::confirm`].
+/// `seen`: per node, whether a neighbouring scan observed any of its voxels.
+fn world_labels(
+    uf: &mut UnionFind,
+    point_node: &[u32],
+    node_value: &[u64],
+    seen: &[bool],
+    p: &TieParams,
+) -> (Vec<u32>, u32, usize) {
+    let nodes = node_value.len();
     // Which world segments more than one scan found, and which lie where another scan looked.
     let mut first_scan = vec![u64::MAX; nodes];
     let (mut several, mut observed) = (vec![false; nodes], vec![false; nodes]);
@@ -336,12 +420,12 @@ pub fn tie(
         } else if first_scan[r] != sc {
             several[r] = true;
         }
-        observed[r] |= seen_next[nd] + seen_prev[nd] > 0;
+        observed[r] |= seen[nd];
     }
     let mut unconfirmed = 0;
     let mut world = vec![0u32; nodes];
     let mut next = 0u32;
-    let mut labels = vec![0u32; n];
+    let mut labels = vec![0u32; point_node.len()];
     for (i, &nd) in point_node.iter().enumerate() {
         if nd == NONE {
             continue;
@@ -364,15 +448,7 @@ pub fn tie(
         }
         labels[i] = world[root];
     }
-    let stats = TieStats {
-        scans: scans.len(),
-        scan_segments: nodes,
-        candidate_pairs: pairs.len() + same.len(),
-        ties,
-        unconfirmed,
-        world_segments: next as usize,
-    };
-    (labels, stats)
+    (labels, next, unconfirmed)
 }
 
 #[cfg(test)]
