@@ -459,6 +459,17 @@ mod tests {
         scan << SEGMENT_BITS | seg
     }
 
+    /// [`tie`] with every point observed and a member, at the origin.
+    fn tie_all(
+        xyz: &[[f64; 3]],
+        vals: &[u64],
+        lab: Option<&[[f32; 3]]>,
+        p: &TieParams,
+    ) -> (Vec<u32>, TieStats) {
+        let all = vec![true; xyz.len()];
+        tie(xyz, vals, &all, &all, lab, [0.0; 3], p)
+    }
+
     /// A wall seen by three scans as segments 1, 2 and 5, and a pole seen by the first two:
     /// the wall pieces tie, the pole ties with itself only, and a stray contact stays apart.
     #[test]
@@ -489,14 +500,12 @@ mod tests {
                 vals.push(v(scan, 0));
             }
         }
-        let n = xyz.len();
-        let all = vec![true; n];
         // (The stray is one scan's segment where others looked: see the next test.)
         let p = TieParams {
             confirm: false,
             ..TieParams::default()
         };
-        let (labels, st) = tie(&xyz, &vals, &all, &all, None, [0.0; 3], &p);
+        let (labels, st) = tie_all(&xyz, &vals, None, &p);
         assert_eq!(st.scans, 3);
         assert_eq!(st.scan_segments, 6);
         let wall = labels[0];
@@ -530,13 +539,12 @@ mod tests {
         }
         xyz.push([10.1, 0.0, 0.0]);
         vals.push(v(2, 0));
-        let all = vec![true; xyz.len()];
         let run = |confirm| {
             let p = TieParams {
                 confirm,
                 ..TieParams::default()
             };
-            tie(&xyz, &vals, &all, &all, None, [0.0; 3], &p)
+            tie_all(&xyz, &vals, None, &p)
         };
         let at = |l: &[u32], value: u64| l[vals.iter().position(|&x| x == value).unwrap()];
         let (l, st) = run(true);
@@ -590,44 +598,19 @@ mod tests {
             xyz.push([k as f64, 0.0, 0.0]);
             vals.push(v(2, if k < 8 { 4 } else { 0 }));
         }
-        let all = vec![true; xyz.len()];
         let with = |basis, majority_fraction| TieParams {
             basis,
             majority_fraction,
             confirm: false,
             ..TieParams::default()
         };
-        let (l, st) = tie(
-            &xyz,
-            &vals,
-            &all,
-            &all,
-            None,
-            [0.0; 3],
-            &with(TieBasis::Larger, 0.5),
-        );
+        let (l, st) = tie_all(&xyz, &vals, None, &with(TieBasis::Larger, 0.5));
         assert_eq!(st.ties, 0);
         assert_ne!(l[0], l[20]);
-        let (l, st) = tie(
-            &xyz,
-            &vals,
-            &all,
-            &all,
-            None,
-            [0.0; 3],
-            &with(TieBasis::Larger, 0.3),
-        );
+        let (l, st) = tie_all(&xyz, &vals, None, &with(TieBasis::Larger, 0.3));
         assert_eq!(st.ties, 1);
         assert_eq!(l[0], l[20]);
-        let (l, st) = tie(
-            &xyz,
-            &vals,
-            &all,
-            &all,
-            None,
-            [0.0; 3],
-            &with(TieBasis::Smaller, 0.9),
-        );
+        let (l, st) = tie_all(&xyz, &vals, None, &with(TieBasis::Smaller, 0.9));
         assert_eq!(st.ties, 1);
         assert_eq!(l[0], l[20]);
     }
@@ -667,13 +650,12 @@ mod tests {
                 vals.push(v(1, 6));
             }
         }
-        let all = vec![true; xyz.len()];
         let run = |plane_tolerance_m| {
             let p = TieParams {
                 plane_tolerance_m,
                 ..TieParams::default()
             };
-            tie(&xyz, &vals, &all, &all, None, [0.0; 3], &p).0
+            tie_all(&xyz, &vals, None, &p).0
         };
         let at = |l: &[u32], value: u64| l[vals.iter().position(|&x| x == value).unwrap()];
         let loose = run(0.0);
@@ -738,14 +720,13 @@ mod tests {
                 }
             })
             .collect();
-        let all = vec![true; xyz.len()];
         let run = |colour_tolerance, lab| {
             let p = TieParams {
                 colour_tolerance,
                 min_shared_voxels: 1,
                 ..TieParams::default()
             };
-            tie(&xyz, &vals, &all, &all, lab, [0.0; 3], &p).0
+            tie_all(&xyz, &vals, lab, &p).0
         };
         let at = |l: &[u32], value: u64| l[vals.iter().position(|&x| x == value).unwrap()];
         let l = run(10.0, Some(&lab[..]));
