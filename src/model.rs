@@ -170,6 +170,11 @@ impl RecordLayout {
             20
         })
     }
+    /// The red, green and blue of a record, given [`Self::rgb_offset`].
+    pub fn rgb_at(record: &[u8], offset: usize) -> [u16; 3] {
+        let c = |k: usize| u16::from_le_bytes([record[offset + 2 * k], record[offset + 2 * k + 1]]);
+        [c(0), c(1), c(2)]
+    }
     /// Builds the layout for a format and transforms.
     pub fn new(mut format: Format, transforms: Vector<Transform>) -> Self {
         format.is_compressed = false;

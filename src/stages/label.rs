@@ -386,11 +386,7 @@ impl LabelStage {
         let lab: Option<Vec<[f64; 3]>> = layout.rgb_offset().map(|off| {
             let rgb: Vec<[u16; 3]> = gidx
                 .iter()
-                .map(|&i| {
-                    let rec = &tile.records[i * rl..(i + 1) * rl];
-                    let v = |c: usize| u16::from_le_bytes([rec[off + 2 * c], rec[off + 2 * c + 1]]);
-                    [v(0), v(1), v(2)]
-                })
+                .map(|&i| RecordLayout::rgb_at(&tile.records[i * rl..(i + 1) * rl], off))
                 .collect();
             let eight = rgb_is_8bit(&rgb);
             rgb.iter().map(|&c| rgb16_to_lab(c, eight)).collect()

@@ -178,9 +178,9 @@ fn describe(
         let s = l as usize - 1;
         mom[s].add(&xyz[i]);
         if let Some((recs, rl, o)) = rgb {
-            let r = &recs[i * rl..(i + 1) * rl];
-            for (c, sum) in csum[s].iter_mut().enumerate() {
-                let v = u16::from_le_bytes([r[o + 2 * c], r[o + 2 * c + 1]]) as f64;
+            let c = RecordLayout::rgb_at(&recs[i * rl..(i + 1) * rl], o);
+            for (sum, v) in csum[s].iter_mut().zip(c) {
+                let v = v as f64;
                 *sum += if eight_bit { v } else { v * 255.0 / 65535.0 };
             }
         }
@@ -254,10 +254,7 @@ impl SegmentStage {
             let rgb: Vec<[u16; 3]> = tile
                 .records
                 .chunks_exact(rl)
-                .map(|r| {
-                    let c = |k: usize| u16::from_le_bytes([r[o + 2 * k], r[o + 2 * k + 1]]);
-                    [c(0), c(1), c(2)]
-                })
+                .map(|r| RecordLayout::rgb_at(r, o))
                 .collect();
             let eight = crate::segment::rgb_is_8bit(&rgb);
             // Only segment members' colours are used (ground points are most of a tile).
@@ -363,10 +360,7 @@ impl Stage for SegmentStage {
         let rgb: Option<Vec<[u16; 3]>> = layout.rgb_offset().map(|o| {
             tile.records
                 .chunks_exact(rl)
-                .map(|rec| {
-                    let v = |i: usize| u16::from_le_bytes([rec[o + 2 * i], rec[o + 2 * i + 1]]);
-                    [v(0), v(1), v(2)]
-                })
+                .map(|rec| RecordLayout::rgb_at(rec, o))
                 .collect()
         });
         // One origin for every tile of the run (the run layout's offsets), so neighbouring
