@@ -5,6 +5,11 @@
 //! it to the mean of the pixels within `hs` pixels (square) whose value lies within `hr` of
 //! the window's value (uniform kernel), until the move is below a hundredth of `hr` and half
 //! a pixel, or after `max_iter` moves; the pixel's filtered value is where its window ends.
+//! Basins of attraction (`basin`, as in Comaniciu & Meer's faster filter): a pixel up to
+//! `basin` columns to the right of a window's start, in the same row, that the window passed
+//! within a pixel of while its value lay within `hr / 2` of the pixel's, takes that window's end
+//! value and starts no window of its own. Rows are independent, so results do not depend on
+//! the thread count; a pixel that starts its own window gets the same value as without basins.
 //! Grouping: 4-neighbouring pixels whose filtered values lie within `merge · hr` and that
 //! lie on one surface ([`super::cues::same_surface`]) join one segment, so a segment is also
 //! connected in 3-D.
@@ -23,6 +28,9 @@ pub struct Kernel {
     pub hr: f32,
     /// Most window moves per pixel.
     pub max_iter: usize,
+    /// Basins of attraction: pixels up to this many columns to the right of a window's start
+    /// may take its end value (0: every pixel starts its own window, the exact filter).
+    pub basin: usize,
     /// Grouping: filtered values within `merge · hr` join.
     pub merge: f32,
 }
@@ -62,15 +70,22 @@ pub fn filter<const D: usize>(
     out.par_chunks_mut(img.cols)
         .enumerate()
         .for_each(|(r, row)| {
-            for (c, o) in row.iter_mut().enumerate() {
+            // Pixels of this row that took a window's value (basins), and the window's path.
+            let mut taken = vec![false; if k.basin > 0 { img.cols } else { 0 }];
+            let mut path: Vec<([f32; D], f32, f32)> = Vec::new();
+            for c in 0..img.cols {
                 let i = r * img.cols + c;
-                if !usable[i] {
+                if !usable[i] || taken.get(c) == Some(&true) {
                     continue;
                 }
                 let mut y = values[i];
                 // Window centre as an offset from the pixel, in pixels.
                 let (mut yr, mut yc) = (0.0f32, 0.0f32);
+                path.clear();
                 for _ in 0..k.max_iter {
+                    if k.basin > 0 {
+                        path.push((y, yr, yc));
+                    }
                     let (cr, cc) = (yr.round() as isize, yc.round() as isize);
                     let mut acc = [0.0f32; D];
                     let (mut sr, mut sc, mut n) = (0.0f32, 0.0f32, 0u32);
@@ -117,7 +132,25 @@ pub fn filter<const D: usize>(
                         break;
                     }
                 }
-                *o = y;
+                row[c] = y;
+                if k.basin > 0 {
+                    path.push((y, yr, yc));
+                    let near = hr2 * 0.25;
+                    for c2 in c + 1..=(c + k.basin).min(img.cols - 1) {
+                        let j = r * img.cols + c2;
+                        if !usable[j] || taken[c2] {
+                            continue;
+                        }
+                        let dc = (c2 - c) as f32;
+                        let passed = path.iter().any(|&(py, pr, pc)| {
+                            pr.abs() <= 1.0 && (dc - pc).abs() <= 1.0 && d2(&values[j], &py) < near
+                        });
+                        if passed {
+                            taken[c2] = true;
+                            row[c2] = y;
+                        }
+                    }
+                }
             }
         });
     out
@@ -295,6 +328,7 @@ mod tests {
                     hr: 1.5,
                     max_iter: 6,
                     merge: 0.5,
+                    basin: 0,
                 };
                 let got = filter(&img, &v, &usable, k);
                 let want = filter_reference(&img, &v, &usable, k);
@@ -305,6 +339,59 @@ mod tests {
                 assert!(got != v, "the filter moved nothing");
             }
         }
+    }
+
+    #[test]
+    fn basins_hand_on_a_window_value_only_to_pixels_it_passed_with_a_close_value() {
+        // Rows of noisy levels with a step of 3 (twice the bandwidth) every 7 columns, the
+        // steps one column further in each row (so windows start at every place before one).
+        let (rows, cols) = (14, 40);
+        let level = |i: usize| (i % cols + i / cols) / 7;
+        let mut rng = crate::rng::Rng(5);
+        let v: Vec<[f32; 1]> = (0..rows * cols)
+            .map(|i| [3.0 * level(i) as f32 + rng.range(-0.4, 0.4) as f32])
+            .collect();
+        let usable = vec![true; v.len()];
+        let img = flat_image(rows, cols);
+        // Two moves: windows end apart, so a value taken from a neighbour shows.
+        let kernel = |basin| Kernel {
+            hs: 2,
+            hr: 1.5,
+            max_iter: 2,
+            merge: 0.5,
+            basin,
+        };
+        let exact = filter(&img, &v, &usable, kernel(0));
+        let fast = filter(&img, &v, &usable, kernel(2));
+        let mut adopted = 0;
+        for i in 0..v.len() {
+            if fast[i] == exact[i] {
+                continue;
+            }
+            // Not its own window's value: that of a window started at most 2 columns to the
+            // left in the same row, on the same level (a step is twice the bandwidth away).
+            let c = i % cols;
+            let from = (1..=2.min(c)).find(|&d| fast[i] == exact[i - d]);
+            let d = from.unwrap_or_else(|| panic!("pixel {i}: {:?} is no window's", fast[i]));
+            assert_eq!(
+                level(i),
+                level(i - d),
+                "pixel {i} took a value across a step"
+            );
+            adopted += 1;
+        }
+        // Most pixels of a level take a neighbour's value instead of starting a window.
+        assert!(
+            adopted > v.len() / 3,
+            "only {adopted} of {} pixels adopted",
+            v.len()
+        );
+        // A different row order (threads) gives the same result.
+        let one = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap();
+        assert_eq!(one.install(|| filter(&img, &v, &usable, kernel(2))), fast);
     }
 
     #[test]
@@ -324,6 +411,7 @@ mod tests {
             hr: 0.8,
             max_iter: 10,
             merge: 0.5,
+            basin: 0,
         };
         let f = filter(&img, &v, &usable, k);
         let jump = STRICT;
@@ -353,6 +441,7 @@ mod tests {
             hr: 1.0,
             max_iter: 3,
             merge: 0.5,
+            basin: 0,
         };
         let f = filter(&img, &v, &usable, k);
         let (lab, n) = group(&img, &f, &usable, k, STRICT);
@@ -390,6 +479,7 @@ mod tests {
             hr: 1.0,
             max_iter: 3,
             merge: 0.5,
+            basin: 0,
         };
         let f = filter(&img, &v, &usable, k);
         let run = |max_gap_px| {

@@ -37,6 +37,11 @@ pub struct MulticueParams {
     pub hs_px: usize,
     /// Most mean-shift moves per pixel.
     pub max_iter: usize,
+    /// Mean-shift basins of attraction ([`meanshift`]): a pixel up to this many columns after
+    /// a window's start in its row, passed by the window with a value within half the
+    /// bandwidth, takes the window's end value instead of starting its own (0: every pixel
+    /// starts a window, the exact filter).
+    pub basin_px: usize,
     /// Grouping: filtered values within this share of the bandwidth join.
     pub merge: f32,
     /// Range cue bandwidth, metres.
@@ -81,6 +86,7 @@ impl Default for MulticueParams {
         MulticueParams {
             hs_px: 2,
             max_iter: 5,
+            basin_px: 2,
             merge: 0.5,
             range_hr_m: 0.5,
             normal_hr_deg: 15.0,
@@ -129,6 +135,12 @@ impl MulticueParams {
         }
         if self.hs_px == 0 || self.hs_px > 32 || self.max_iter == 0 {
             return Err("segment.multicue: hs_px must be 1..=32 and max_iter >= 1".into());
+        }
+        if self.basin_px > 32 {
+            return Err(format!(
+                "segment.multicue: basin_px must be at most 32, got {}",
+                self.basin_px
+            ));
         }
         if self.normal_hr_deg >= 180.0 || self.normal_max_dispersion_deg >= 180.0 {
             return Err("segment.multicue: normal angles must be below 180°".into());
@@ -230,6 +242,7 @@ pub fn segment_scan(img: &RangeImage, p: &MulticueParams) -> ScanSegmentation {
         hr,
         max_iter: p.max_iter,
         merge: p.merge,
+        basin: p.basin_px,
     };
     for cue in [Cue::Range, Cue::Normals, Cue::Colour] {
         if !wanted.contains(&cue) {
@@ -479,6 +492,11 @@ mod tests {
             ..Default::default()
         };
         assert!(p.validate().is_err());
+        p = MulticueParams {
+            basin_px: 33,
+            ..Default::default()
+        };
+        assert!(p.validate().unwrap_err().contains("basin_px"));
         p = MulticueParams {
             max_gap_px: 9,
             ..Default::default()
