@@ -290,6 +290,9 @@ impl SegmentStage {
                 "candidate_pairs": st.candidate_pairs,
                 "ties": st.ties,
                 "unconfirmed": st.unconfirmed,
+                "split_off": st.split_off,
+                "attached_points": st.attached,
+                "leftover_segments": st.leftover_segments,
             }),
         );
         tile.segments = labels;
@@ -319,8 +322,10 @@ impl Stage for SegmentStage {
             // Tying: the points' values (8 B), (voxel, scan, node) entries (16 B), node and
             // label per point (8 B), the CIELab colours when there is colour (12 B, and the
             // 6 B of RGB they are made from), the masks, and the segment sums and pair counts,
-            // which grow with segments, not points. Estimated, with slack; not yet measured by
-            // `tests/stage_memory.rs`.
+            // which grow with segments, not points; the refinement's point lists, voxel maps
+            // and per-segment shapes. Estimated, with slack; not yet measured by
+            // `tests/stage_memory.rs` (summary.json peak on the 32-ring 60 m drive: 62 B per
+            // tile point without the refinement, 73 B with it).
             SegmentMethod::Multicue => 84,
         }
     }

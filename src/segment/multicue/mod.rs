@@ -18,6 +18,7 @@ pub mod cues;
 pub mod image;
 pub mod integrate;
 pub mod meanshift;
+mod refine;
 pub mod ties;
 
 use std::time::Instant;

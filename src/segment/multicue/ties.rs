@@ -22,6 +22,7 @@
 //! tile stitching then joins world segments across tile borders as for region growing.
 
 use super::meanshift::UnionFind;
+use super::refine::{dominant_plane, flat_and_wide, refine, Members, RefineParams, Refined};
 use crate::segment::features::{Moments, Plane};
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
@@ -57,6 +58,18 @@ pub struct TieParams {
     /// A world segment must hold segments of two scans or more, unless no other scan observed
     /// its voxels; otherwise its points are left unsegmented.
     pub confirm: bool,
+    /// A segment that is not planar as a whole is still planar for the plane check when a
+    /// plane holds at least this share of its points (within `plane_tolerance_m`; found by a
+    /// seeded RANSAC, refitted to its inliers, wide as above): a scan's façade segment that
+    /// took in the car parked in front of it or the footpath at its foot is still a façade,
+    /// and a window's glass behind it is still not on it. 0: least-squares planes only (and
+    /// no split in the refinement).
+    pub dominant_fraction: f64,
+    /// Voxel edge of the refinement of the world segments on the drive's points together
+    /// (`refine.rs`: split off dominant planes, unsegmented points onto planes or into
+    /// segments of their own, touching pieces of one surface or object joined), metres.
+    /// 0: no refinement.
+    pub refine_voxel_m: f64,
 }
 
 /// Which segment's seen voxels the shared voxels are compared with.
@@ -83,6 +96,8 @@ impl Default for TieParams {
             plane_tolerance_m: 0.05,
             colour_tolerance: 10.0,
             confirm: true,
+            dominant_fraction: 0.6,
+            refine_voxel_m: 0.25,
         }
     }
 }
@@ -106,6 +121,18 @@ impl TieParams {
             return Err(format!(
                 "segment.tie.colour_tolerance must be >= 0, got {}",
                 self.colour_tolerance
+            ));
+        }
+        if !(self.dominant_fraction.is_finite() && (0.0..=1.0).contains(&self.dominant_fraction)) {
+            return Err(format!(
+                "segment.tie.dominant_fraction must be in [0, 1], got {}",
+                self.dominant_fraction
+            ));
+        }
+        if !(self.refine_voxel_m.is_finite() && self.refine_voxel_m >= 0.0) {
+            return Err(format!(
+                "segment.tie.refine_voxel_m must be >= 0, got {}",
+                self.refine_voxel_m
             ));
         }
         if self.min_shared_voxels == 0 {
@@ -134,6 +161,12 @@ pub struct TieStats {
     pub ties: usize,
     /// World segments of one scan, where other scans looked, left unsegmented (`confirm`).
     pub unconfirmed: usize,
+    /// Refinement (`refine.rs`): pieces split off world segments' dominant planes …
+    pub split_off: usize,
+    /// … unsegmented points that joined a segment's plane …
+    pub attached: usize,
+    /// … and segments formed by the points left over.
+    pub leftover_segments: usize,
     /// World segments (after ties) with points in the tile.
     pub world_segments: usize,
 }
@@ -233,25 +266,54 @@ pub fn tie(
     let seen: Vec<bool> = (0..nodes)
         .map(|nd| seen_next[nd] + seen_prev[nd] > 0)
         .collect();
-    let (labels, next, unconfirmed) = world_labels(&mut uf, &point_node, &node_value, &seen, p);
+    let (mut labels, mut next, unconfirmed) =
+        world_labels(&mut uf, &point_node, &node_value, &seen, p);
+    let refined = if p.refine_voxel_m > 0.0 && p.plane_tolerance_m > 0.0 {
+        let wanted: Vec<bool> = (0..n)
+            .map(|i| member[i] && observe[i] && xyz[i].iter().all(|c| c.is_finite()))
+            .collect();
+        let rp = RefineParams {
+            voxel_m: p.refine_voxel_m,
+            plane_tolerance_m: p.plane_tolerance_m,
+            dominant_fraction: p.dominant_fraction,
+            colour_tolerance: p.colour_tolerance,
+        };
+        let r = refine(xyz, &mut labels, next, &wanted, lab, origin, &rp);
+        next = r.segments;
+        r
+    } else {
+        Refined::default()
+    };
     let stats = TieStats {
         scans: scans.len(),
         scan_segments: nodes,
         candidate_pairs: pairs.len() + same.len(),
         ties,
         unconfirmed,
+        split_off: refined.split_off,
+        attached: refined.attached,
+        leftover_segments: refined.leftover_segments,
         world_segments: next as usize,
     };
     (labels, stats)
 }
 
-/// Per node: its points' moments, least-squares plane if planar, and mean colour, for the
-/// plane check (see [`TieParams::plane_tolerance_m`] and [`TieParams::colour_tolerance`]).
+/// Per node, for the plane check (see [`TieParams::plane_tolerance_m`],
+/// [`TieParams::dominant_fraction`] and [`TieParams::colour_tolerance`]): how many points it
+/// has, its plane if it is planar, and the moments and mean colour of its surface — all its
+/// points, or those on its dominant plane when only a dominant plane makes it planar (a
+/// façade's segment with the car in front of it compares as the façade).
 struct Surfaces {
-    planes: Vec<(Moments, Option<Plane>)>,
-    colours: Vec<[f64; 3]>,
+    nodes: Vec<NodeSurface>,
     tol: f64,
     colour_tol: f64,
+}
+
+struct NodeSurface {
+    points: usize,
+    plane: Option<Plane>,
+    surface: Moments,
+    colour: Option<[f64; 3]>,
 }
 
 impl Surfaces {
@@ -264,77 +326,86 @@ impl Surfaces {
         p: &TieParams,
     ) -> Self {
         let tol = p.plane_tolerance_m;
-        let planes: Vec<(Moments, Option<Plane>)> = if tol > 0.0 {
-            let mut m = vec![Moments::new(origin); nodes];
-            for (i, &nd) in point_node.iter().enumerate() {
-                if nd != NONE {
-                    m[nd as usize].add(&xyz[i]);
-                }
-            }
-            m.into_iter()
-                .map(|m| {
-                    // Planar: flat (λ0) and wide along both in-plane axes (λ1 ≤ λ2), not a pole.
-                    let plane = m
-                        .eigen()
-                        .filter(|(_, l, _)| l[0].sqrt() <= tol && l[1].sqrt() >= 10.0 * tol)
-                        .map(|(c, _, v)| Plane {
-                            n: v[0],
-                            d: v[0][0] * c[0] + v[0][1] * c[1] + v[0][2] * c[2],
-                        });
-                    (m, plane)
-                })
-                .collect()
-        } else {
-            Vec::new()
-        };
-        let colours: Vec<[f64; 3]> = match lab {
-            Some(lab) if !planes.is_empty() && p.colour_tolerance > 0.0 => {
-                let mut sum = vec![[0.0f64; 3]; nodes];
-                for (i, &nd) in point_node.iter().enumerate() {
-                    if nd != NONE {
-                        let s = &mut sum[nd as usize];
-                        for c in 0..3 {
-                            s[c] += lab[i][c] as f64;
-                        }
-                    }
-                }
-                sum.iter()
-                    .zip(&planes)
-                    .map(|(s, (m, _))| s.map(|v| v / m.n.max(1) as f64))
-                    .collect()
-            }
-            _ => Vec::new(),
-        };
-        Surfaces {
-            planes,
-            colours,
+        let mut out = Surfaces {
+            nodes: Vec::new(),
             tol,
             colour_tol: p.colour_tolerance,
+        };
+        if tol <= 0.0 {
+            return out;
         }
+        let lab = lab.filter(|_| p.colour_tolerance > 0.0);
+        let members = Members::new(point_node, nodes);
+        out.nodes = (0..nodes)
+            .map(|nd| {
+                let idx = members.of(nd);
+                let moments = |idx: &mut dyn Iterator<Item = &u32>| {
+                    let mut m = Moments::new(origin);
+                    let mut c = [0.0f64; 3];
+                    for &i in idx {
+                        m.add(&xyz[i as usize]);
+                        if let Some(lab) = lab {
+                            for k in 0..3 {
+                                c[k] += lab[i as usize][k] as f64;
+                            }
+                        }
+                    }
+                    let colour = lab.map(|_| c.map(|v| v / m.n.max(1) as f64));
+                    (m, colour)
+                };
+                let (all, colour) = moments(&mut idx.iter());
+                if let Some(plane) = flat_and_wide(&all, tol) {
+                    return NodeSurface {
+                        points: idx.len(),
+                        plane: Some(plane),
+                        surface: all,
+                        colour,
+                    };
+                }
+                match dominant_plane(xyz, idx, origin, tol, p.dominant_fraction) {
+                    Some(plane) => {
+                        let (on, colour) = moments(
+                            &mut idx.iter().filter(|&&i| plane.dist(&xyz[i as usize]) <= tol),
+                        );
+                        NodeSurface {
+                            points: idx.len(),
+                            plane: Some(plane),
+                            surface: on,
+                            colour,
+                        }
+                    }
+                    None => NodeSurface {
+                        points: idx.len(),
+                        plane: None,
+                        surface: all,
+                        colour,
+                    },
+                }
+            })
+            .collect();
+        out
     }
 
     /// The plane check of a pair: `None` when the larger is not planar (or the check is off),
-    /// else whether the smaller lies on its plane with its colour.
+    /// else whether the smaller's surface lies on its plane with its colour.
     fn on_plane(&self, a: u32, b: u32) -> Option<bool> {
-        let planes = &self.planes;
-        if planes.is_empty() {
+        let nodes = &self.nodes;
+        if nodes.is_empty() {
             return None;
         }
-        let (a, b) = (a as usize, b as usize);
-        let (big, small) = if planes[a].0.n >= planes[b].0.n {
-            (a, b)
-        } else {
-            (b, a)
-        };
-        let plane = planes[big].1.as_ref()?;
-        let near = planes[small]
-            .0
+        let (a, b) = (&nodes[a as usize], &nodes[b as usize]);
+        let (big, small) = if a.points >= b.points { (a, b) } else { (b, a) };
+        let plane = big.plane.as_ref()?;
+        let near = small
+            .surface
             .mean_sq_distance(plane)
             .is_none_or(|d2| d2.sqrt() <= self.tol);
-        let same_colour = self.colours.is_empty() || {
-            let (x, y) = (self.colours[big], self.colours[small]);
-            let d2: f64 = (0..3).map(|c| (x[c] - y[c]).powi(2)).sum();
-            d2.sqrt() <= self.colour_tol
+        let same_colour = match (big.colour, small.colour) {
+            (Some(x), Some(y)) => {
+                let d2: f64 = (0..3).map(|c| (x[c] - y[c]).powi(2)).sum();
+                d2.sqrt() <= self.colour_tol
+            }
+            _ => true,
         };
         Some(near && same_colour)
     }
@@ -460,6 +531,14 @@ mod tests {
     }
 
     /// [`tie`] with every point observed and a member, at the origin.
+    /// The ties' rules alone (no refinement, which `refine.rs` tests).
+    fn ties_only() -> TieParams {
+        TieParams {
+            refine_voxel_m: 0.0,
+            ..TieParams::default()
+        }
+    }
+
     fn tie_all(
         xyz: &[[f64; 3]],
         vals: &[u64],
@@ -503,7 +582,7 @@ mod tests {
         // (The stray is one scan's segment where others looked: see the next test.)
         let p = TieParams {
             confirm: false,
-            ..TieParams::default()
+            ..ties_only()
         };
         let (labels, st) = tie_all(&xyz, &vals, None, &p);
         assert_eq!(st.scans, 3);
@@ -542,7 +621,7 @@ mod tests {
         let run = |confirm| {
             let p = TieParams {
                 confirm,
-                ..TieParams::default()
+                ..ties_only()
             };
             tie_all(&xyz, &vals, None, &p)
         };
@@ -602,7 +681,7 @@ mod tests {
             basis,
             majority_fraction,
             confirm: false,
-            ..TieParams::default()
+            ..ties_only()
         };
         let (l, st) = tie_all(&xyz, &vals, None, &with(TieBasis::Larger, 0.5));
         assert_eq!(st.ties, 0);
@@ -653,7 +732,7 @@ mod tests {
         let run = |plane_tolerance_m| {
             let p = TieParams {
                 plane_tolerance_m,
-                ..TieParams::default()
+                ..ties_only()
             };
             tie_all(&xyz, &vals, None, &p).0
         };
@@ -724,7 +803,7 @@ mod tests {
             let p = TieParams {
                 colour_tolerance,
                 min_shared_voxels: 1,
-                ..TieParams::default()
+                ..ties_only()
             };
             tie_all(&xyz, &vals, lab, &p).0
         };

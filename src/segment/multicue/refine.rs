@@ -1,0 +1,704 @@
+//! Refinement of the world segments on the drive's points together.
+//!
+//! A scan sees a surface with a few returns: on 16 or 32 rings a window 10 cm behind its
+//! façade, framed in the façade's colour, gets 2–15 returns per scan, too few for the range,
+//! normal or colour cue to tell it from the wall, so the scan's façade segment holds it and so
+//! does the world segment the ties make; returns below a scan's `min_points` stay unsegmented.
+//! The drive's points of the same place together are dense enough for plane geometry. After
+//! the ties, in each tile:
+//! 1. **split**: a world segment with a dominant plane ([`dominant_plane`]) keeps the points
+//!    within `plane_tolerance_m` of it; the others become pieces of their own by voxel
+//!    connectivity;
+//! 2. **attach**: an unsegmented point takes the segment in its own or a neighbouring voxel
+//!    whose plane lies nearest to it, within the tolerance; the points still left become
+//!    pieces by voxel connectivity;
+//! 3. **join** ([`join_touching`]): touching segments that are one surface (one lies on the
+//!    other's plane) or one object (a segment enclosed by a larger one without a plane: a
+//!    car's glass and its body) are joined.
+//!
+//! Everything depends only on the tile's points (RANSAC draws from a generator seeded by the
+//! points; maps are read in a fixed order), not on threads. The tile stitching then joins the
+//! refined segments across tiles as for region growing.
+
+use super::meanshift::UnionFind;
+use crate::segment::features::{Moments, Plane};
+use std::collections::HashMap;
+
+/// No node / no segment.
+const NONE: u32 = u32::MAX;
+
+/// Least points of a new piece; smaller ones stay unsegmented.
+const MIN_PIECE_POINTS: usize = 10;
+
+/// The refinement's parameters (from `[segment.tie]`, see [`super::ties::TieParams`]).
+#[derive(Debug, Clone, Copy)]
+pub(super) struct RefineParams {
+    /// Voxel edge, metres (> 0).
+    pub voxel_m: f64,
+    /// Plane tolerance, metres (> 0).
+    pub plane_tolerance_m: f64,
+    /// Least share of a segment's points on its dominant plane (0: no split).
+    pub dominant_fraction: f64,
+    /// Colour tolerance of coplanar joins, ΔE*ab (0: none).
+    pub colour_tolerance: f64,
+}
+
+/// What [`refine`] did.
+#[derive(Debug, Clone, Copy, Default)]
+pub(super) struct Refined {
+    /// Segments after the refinement (labels 1..=segments).
+    pub segments: u32,
+    /// Pieces split off dominant planes.
+    pub split_off: usize,
+    /// Unsegmented points attached to a plane.
+    pub attached: usize,
+    /// Pieces formed by the points left over.
+    pub leftover_segments: usize,
+}
+
+/// Refines the world segments `labels` (0 = none, 1..=`segments`) of a tile; `wanted` are the
+/// points that should have a segment (the segment stage's members, finite). Labels are
+/// renumbered 1.. by first point.
+pub(super) fn refine(
+    xyz: &[[f64; 3]],
+    labels: &mut [u32],
+    segments: u32,
+    wanted: &[bool],
+    lab: Option<&[[f32; 3]]>,
+    origin: [f64; 3],
+    p: &RefineParams,
+) -> Refined {
+    let grid = Grid {
+        origin,
+        inv: 1.0 / p.voxel_m,
+    };
+    let mut next = segments;
+    let mut out = Refined::default();
+    // Pieces are labelled above this; their colour is not their own evidence (see
+    // `join_touching`).
+    let first_piece = next;
+    if p.dominant_fraction > 0.0 {
+        for piece in split_off_planes(xyz, labels, segments, &grid, p) {
+            if piece.len() >= MIN_PIECE_POINTS {
+                next += 1;
+                out.split_off += 1;
+            }
+            let l = if piece.len() >= MIN_PIECE_POINTS {
+                next
+            } else {
+                0
+            };
+            for i in piece {
+                labels[i as usize] = l;
+            }
+        }
+    }
+    let left: Vec<u32> = (0..labels.len() as u32)
+        .filter(|&i| wanted[i as usize] && labels[i as usize] == 0)
+        .collect();
+    let (attached, rest) = attach_to_planes(xyz, labels, next, &left, lab, &grid, p);
+    out.attached = attached;
+    for piece in grid.components(xyz, &rest) {
+        if piece.len() >= MIN_PIECE_POINTS {
+            next += 1;
+            out.leftover_segments += 1;
+            for i in piece {
+                labels[i as usize] = next;
+            }
+        }
+    }
+    out.segments = join_touching(xyz, labels, lab, next, first_piece, &grid, p);
+    out
+}
+
+/// A voxel grid of one edge over a tile.
+struct Grid {
+    origin: [f64; 3],
+    inv: f64,
+}
+
+impl Grid {
+    fn key(&self, q: &[f64; 3]) -> [i64; 3] {
+        std::array::from_fn(|k| ((q[k] - self.origin[k]) * self.inv).floor() as i64)
+    }
+
+    /// The 27 voxels around `c` (itself included).
+    fn around(c: [i64; 3]) -> impl Iterator<Item = [i64; 3]> {
+        (0..27i64).map(move |d| [c[0] + d / 9 - 1, c[1] + d / 3 % 3 - 1, c[2] + d % 3 - 1])
+    }
+
+    /// The labels present in each voxel (each once, in order of first point).
+    fn labels(&self, xyz: &[[f64; 3]], labels: &[u32]) -> HashMap<[i64; 3], Vec<u32>> {
+        let mut voxel: HashMap<[i64; 3], Vec<u32>> = HashMap::new();
+        for (q, &l) in xyz.iter().zip(labels) {
+            if l != 0 {
+                let v = voxel.entry(self.key(q)).or_default();
+                if !v.contains(&l) {
+                    v.push(l);
+                }
+            }
+        }
+        voxel
+    }
+
+    /// The points `idx` grouped by connectivity: two points connect when their voxels touch
+    /// (26-neighbours). Groups in order of their first point, points in input order.
+    fn components(&self, xyz: &[[f64; 3]], idx: &[u32]) -> Vec<Vec<u32>> {
+        let mut cell_of: HashMap<[i64; 3], u32> = HashMap::new();
+        let cell: Vec<u32> = idx
+            .iter()
+            .map(|&i| {
+                let n = cell_of.len() as u32;
+                *cell_of.entry(self.key(&xyz[i as usize])).or_insert(n)
+            })
+            .collect();
+        let mut uf = UnionFind::new(cell_of.len());
+        for (k, &c) in &cell_of {
+            for q in Self::around(*k) {
+                if let Some(&c2) = cell_of.get(&q) {
+                    uf.union(c as usize, c2 as usize);
+                }
+            }
+        }
+        let mut group_of: HashMap<usize, usize> = HashMap::new();
+        let mut groups: Vec<Vec<u32>> = Vec::new();
+        for (&i, &c) in idx.iter().zip(&cell) {
+            let g = *group_of.entry(uf.find(c as usize)).or_insert_with(|| {
+                groups.push(Vec::new());
+                groups.len() - 1
+            });
+            groups[g].push(i);
+        }
+        groups
+    }
+}
+
+/// Node per point for labels 1..: label − 1, [`NONE`] for 0.
+fn label_nodes(labels: &[u32]) -> Vec<u32> {
+    labels
+        .iter()
+        .map(|&l| if l == 0 { NONE } else { l - 1 })
+        .collect()
+}
+
+/// Step 1: for every segment with a dominant plane, the pieces its points off that plane form
+/// (voxel connectivity). The caller labels them.
+fn split_off_planes(
+    xyz: &[[f64; 3]],
+    labels: &[u32],
+    segments: u32,
+    grid: &Grid,
+    p: &RefineParams,
+) -> Vec<Vec<u32>> {
+    let tol = p.plane_tolerance_m;
+    let members = Members::new(&label_nodes(labels), segments as usize);
+    let mut pieces = Vec::new();
+    for seg in 0..segments as usize {
+        let idx = members.of(seg);
+        let Some(plane) = dominant_plane(xyz, idx, grid.origin, tol, p.dominant_fraction) else {
+            continue;
+        };
+        let off: Vec<u32> = idx
+            .iter()
+            .copied()
+            .filter(|&i| plane.dist(&xyz[i as usize]) > tol)
+            .collect();
+        pieces.extend(grid.components(xyz, &off));
+    }
+    pieces
+}
+
+/// Step 2: each point of `left` takes the segment (with a plane, [`SegmentShape`]) in its own
+/// or a neighbouring voxel whose plane lies nearest, within `plane_tolerance_m`. Returns how
+/// many did, and the others.
+fn attach_to_planes(
+    xyz: &[[f64; 3]],
+    labels: &mut [u32],
+    segments: u32,
+    left: &[u32],
+    lab: Option<&[[f32; 3]]>,
+    grid: &Grid,
+    p: &RefineParams,
+) -> (usize, Vec<u32>) {
+    let tol = p.plane_tolerance_m;
+    let members = Members::new(&label_nodes(labels), segments as usize);
+    let voxel = grid.labels(xyz, labels);
+    let mut planes: HashMap<u32, Option<Plane>> = HashMap::new();
+    let mut rest = Vec::new();
+    let mut take = Vec::new();
+    for &i in left {
+        let q = &xyz[i as usize];
+        let mut best: Option<(f64, u32)> = None;
+        for v in Grid::around(grid.key(q)) {
+            for &o in voxel.get(&v).map_or(&[][..], |v| v.as_slice()) {
+                let plane = *planes.entry(o).or_insert_with(|| {
+                    SegmentShape::new(xyz, members.of(o as usize - 1), lab, grid.origin, p).plane
+                });
+                let Some(pl) = plane else { continue };
+                let d = pl.dist(q);
+                if d <= tol && best.is_none_or(|b| (d, o) < b) {
+                    best = Some((d, o));
+                }
+            }
+        }
+        match best {
+            Some((_, o)) => take.push((i, o)),
+            None => rest.push(i),
+        }
+    }
+    // Assigned after the search, so a point's choice does not depend on earlier points.
+    for &(i, o) in &take {
+        labels[i as usize] = o;
+    }
+    (take.len(), rest)
+}
+
+/// Step 3: joins segments that touch (points in the same or neighbouring voxels) and are one
+/// surface or one object, each to the touching segment with the most such voxels:
+/// - a segment lying on another's plane ([`SegmentShape::plane`]; RMS distance within
+///   `plane_tolerance_m`) joins it, with its colour (`colour_tolerance`) unless it is a
+///   piece (labels above `first_piece`: its colour is what had put it with the plane it was
+///   split from, or it had none; a window's frame and its glass are one surface in two
+///   colours) — two buildings' façades in one plane stay apart by colour;
+/// - else a segment that is not a wide plane joins a larger segment without a plane that
+///   encloses it — most of its voxels touch that segment (a car's glass, mirror or wheel,
+///   found apart by a few scans, joins the car; a car parked against another does not).
+///
+/// Decisions use the segments as they were before any join, so they do not depend on order.
+/// Labels are renumbered 1.. by first point; returns the number of segments.
+fn join_touching(
+    xyz: &[[f64; 3]],
+    labels: &mut [u32],
+    lab: Option<&[[f32; 3]]>,
+    segments: u32,
+    first_piece: u32,
+    grid: &Grid,
+    p: &RefineParams,
+) -> u32 {
+    let tol = p.plane_tolerance_m;
+    let members = Members::new(&label_nodes(labels), segments as usize);
+    let voxel = grid.labels(xyz, labels);
+    let shapes: Vec<SegmentShape> = (0..segments as usize)
+        .map(|s| SegmentShape::new(xyz, members.of(s), lab, grid.origin, p))
+        .collect();
+    let shape = |l: u32| &shapes[l as usize - 1];
+    let colour_tol = if p.colour_tolerance > 0.0 {
+        p.colour_tolerance
+    } else {
+        f64::INFINITY
+    };
+    let mut uf = UnionFind::new(segments as usize + 1);
+    for l in 1..=segments {
+        let s = shape(l);
+        let mut cells: Vec<[i64; 3]> = members
+            .of(l as usize - 1)
+            .iter()
+            .map(|&i| grid.key(&xyz[i as usize]))
+            .collect();
+        cells.sort_unstable();
+        cells.dedup();
+        // Per segment, how many of this one's voxels touch it (each voxel counted once).
+        let mut touch: HashMap<u32, usize> = HashMap::new();
+        let mut near: Vec<u32> = Vec::new();
+        for c in &cells {
+            near.clear();
+            for v in Grid::around(*c) {
+                near.extend(voxel.get(&v).map_or(&[][..], |v| v.as_slice()));
+            }
+            near.sort_unstable();
+            near.dedup();
+            for &o in near.iter().filter(|&&o| o != l) {
+                *touch.entry(o).or_default() += 1;
+            }
+        }
+        // Most touching voxels first, then the smaller label: a fixed order.
+        let mut order: Vec<(u32, usize)> = touch.into_iter().collect();
+        order.sort_unstable_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
+        let piece = l > first_piece;
+        let on_plane = order.iter().find(|&&(o, _)| {
+            let t = shape(o);
+            t.plane.is_some_and(|pl| {
+                s.moments
+                    .mean_sq_distance(&pl)
+                    .is_some_and(|d2| d2.sqrt() <= tol)
+                    && (piece || s.colour_distance(t) <= colour_tol)
+            })
+        });
+        let enclosed_by = || {
+            if s.wide {
+                return None;
+            }
+            order.iter().find(|&&(o, k)| {
+                let t = shape(o);
+                t.plane.is_none() && t.moments.n > s.moments.n && 2 * k > cells.len()
+            })
+        };
+        if let Some(&(o, _)) = on_plane.or_else(enclosed_by) {
+            uf.union(l as usize, o as usize);
+        }
+    }
+    let mut renumber: HashMap<usize, u32> = HashMap::new();
+    for l in labels.iter_mut().filter(|l| **l != 0) {
+        let r = uf.find(*l as usize);
+        let n = renumber.len() as u32 + 1;
+        *l = *renumber.entry(r).or_insert(n);
+    }
+    renumber.len() as u32
+}
+
+/// A segment's shape for the attach and join steps.
+struct SegmentShape {
+    moments: Moments,
+    /// Its plane: least-squares if flat with a defined plane (spread ≥ 2 × the tolerance: a
+    /// window ~1 m wide is, a pole is not), else dominant.
+    plane: Option<Plane>,
+    /// A wide plane (the ties' planar test: façades, not windows or car parts).
+    wide: bool,
+    colour: Option<[f64; 3]>,
+}
+
+impl SegmentShape {
+    fn new(
+        xyz: &[[f64; 3]],
+        idx: &[u32],
+        lab: Option<&[[f32; 3]]>,
+        origin: [f64; 3],
+        p: &RefineParams,
+    ) -> Self {
+        let tol = p.plane_tolerance_m;
+        let mut moments = Moments::new(origin);
+        let mut c = [0.0f64; 3];
+        for &i in idx {
+            moments.add(&xyz[i as usize]);
+            if let Some(lab) = lab {
+                for k in 0..3 {
+                    c[k] += lab[i as usize][k] as f64;
+                }
+            }
+        }
+        let wide = flat_and_wide(&moments, tol).is_some();
+        let plane = flat_and(&moments, tol, 2.0 * tol)
+            .or_else(|| dominant_plane(xyz, idx, origin, tol, p.dominant_fraction));
+        let colour = lab.map(|_| c.map(|v| v / moments.n.max(1) as f64));
+        SegmentShape {
+            moments,
+            plane,
+            wide,
+            colour,
+        }
+    }
+
+    /// ΔE*ab between the mean colours; 0 without colour.
+    fn colour_distance(&self, o: &SegmentShape) -> f64 {
+        match (self.colour, o.colour) {
+            (Some(x), Some(y)) => (0..3).map(|c| (x[c] - y[c]).powi(2)).sum::<f64>().sqrt(),
+            _ => 0.0,
+        }
+    }
+}
+
+/// The least-squares plane of `m` when its points are planar: flat (RMS residual λ0 ≤ `tol`)
+/// and wide along both in-plane axes (λ1 ≥ 10 `tol`), not a pole or a thin strip.
+pub(super) fn flat_and_wide(m: &Moments, tol: f64) -> Option<Plane> {
+    flat_and(m, tol, 10.0 * tol)
+}
+
+/// The least-squares plane of `m` when it is flat (λ0 ≤ `tol`) and spread at least `spread`
+/// along both in-plane axes (√λ1).
+pub(super) fn flat_and(m: &Moments, tol: f64, spread: f64) -> Option<Plane> {
+    m.eigen()
+        .filter(|(_, l, _)| l[0].sqrt() <= tol && l[1].sqrt() >= spread)
+        .map(|(c, _, v)| Plane {
+            n: v[0],
+            d: v[0][0] * c[0] + v[0][1] * c[1] + v[0][2] * c[2],
+        })
+}
+
+/// Point indices per node (counting sort of `point_node`, [`NONE`]: no node), in point order.
+pub(super) struct Members {
+    start: Vec<u32>,
+    idx: Vec<u32>,
+}
+
+impl Members {
+    pub(super) fn new(point_node: &[u32], nodes: usize) -> Self {
+        let mut start = vec![0u32; nodes + 1];
+        for &nd in point_node.iter().filter(|&&nd| nd != NONE) {
+            start[nd as usize + 1] += 1;
+        }
+        for i in 0..nodes {
+            start[i + 1] += start[i];
+        }
+        let mut fill = start.clone();
+        let mut idx = vec![0u32; start[nodes] as usize];
+        for (i, &nd) in point_node.iter().enumerate() {
+            if nd != NONE {
+                idx[fill[nd as usize] as usize] = i as u32;
+                fill[nd as usize] += 1;
+            }
+        }
+        Members { start, idx }
+    }
+
+    pub(super) fn of(&self, nd: usize) -> &[u32] {
+        &self.idx[self.start[nd] as usize..self.start[nd + 1] as usize]
+    }
+}
+
+/// Least points for a dominant plane; RANSAC hypotheses; points scored per hypothesis.
+const DOMINANT_MIN_POINTS: usize = 30;
+const DOMINANT_HYPOTHESES: usize = 48;
+const DOMINANT_SCORED: usize = 256;
+
+/// The plane holding at least `fraction` of the points `idx` within `tol` (RANSAC over
+/// triplets drawn by a generator seeded from the points, so the result depends on the points
+/// alone, not on threads), refitted to its inliers and then flat and wide as
+/// [`flat_and_wide`] asks; `None` when no plane holds that share.
+pub(super) fn dominant_plane(
+    xyz: &[[f64; 3]],
+    idx: &[u32],
+    origin: [f64; 3],
+    tol: f64,
+    fraction: f64,
+) -> Option<Plane> {
+    if fraction <= 0.0 || idx.len() < DOMINANT_MIN_POINTS {
+        return None;
+    }
+    let pt = |i: u32| {
+        let p = xyz[i as usize];
+        [p[0] - origin[0], p[1] - origin[1], p[2] - origin[2]]
+    };
+    // Hypotheses are scored on an even subsample of at most DOMINANT_SCORED points.
+    let step = idx.len().div_ceil(DOMINANT_SCORED);
+    let scored: Vec<[f64; 3]> = idx.iter().step_by(step).map(|&i| pt(i)).collect();
+    let seed = idx.len() as u64 ^ (idx[0] as u64) << 32;
+    let mut rng = crate::rng::Rng(seed);
+    let mut best: Option<(usize, [f64; 3], f64)> = None;
+    for _ in 0..DOMINANT_HYPOTHESES {
+        let [a, b, c] = [0; 3].map(|_| scored[rng.below(scored.len() as u32) as usize]);
+        let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
+        let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
+        let n = [
+            u[1] * v[2] - u[2] * v[1],
+            u[2] * v[0] - u[0] * v[2],
+            u[0] * v[1] - u[1] * v[0],
+        ];
+        let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+        // Collinear or repeated points span no plane.
+        if len < 1e-6 {
+            continue;
+        }
+        let n = n.map(|x| x / len);
+        let d = n[0] * a[0] + n[1] * a[1] + n[2] * a[2];
+        let count = scored
+            .iter()
+            .filter(|q| (n[0] * q[0] + n[1] * q[1] + n[2] * q[2] - d).abs() <= tol)
+            .count();
+        if best.is_none_or(|(k, _, _)| count > k) {
+            best = Some((count, n, d));
+        }
+    }
+    let (_, n, d) = best?;
+    // Refit to every point within the tolerance; the refitted plane must hold the share.
+    let mut inliers = Moments::new([0.0; 3]);
+    for &i in idx {
+        let q = pt(i);
+        if (n[0] * q[0] + n[1] * q[1] + n[2] * q[2] - d).abs() <= tol {
+            inliers.add(&q);
+        }
+    }
+    if (inliers.n as f64) < fraction * idx.len() as f64 {
+        return None;
+    }
+    let local = flat_and_wide(&inliers, tol)?;
+    let held = idx.iter().filter(|&&i| local.dist(&pt(i)) <= tol).count();
+    if (held as f64) < fraction * idx.len() as f64 {
+        return None;
+    }
+    // Back to the tile's coordinates (the points above are relative to `origin`).
+    let shift: f64 = (0..3).map(|k| local.n[k] * origin[k]).sum();
+    Some(Plane {
+        n: local.n,
+        d: local.d + shift,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Points on a grid of `step` over the rectangle `x0..x1` × `z0..z1` in the plane y = `y`.
+    fn wall(x: (f64, f64), z: (f64, f64), y: f64, step: f64) -> Vec<[f64; 3]> {
+        let mut v = Vec::new();
+        let (nx, nz) = (((x.1 - x.0) / step) as usize, ((z.1 - z.0) / step) as usize);
+        for i in 0..nx {
+            for k in 0..nz {
+                v.push([
+                    x.0 + (i as f64 + 0.5) * step,
+                    y,
+                    z.0 + (k as f64 + 0.5) * step,
+                ]);
+            }
+        }
+        v
+    }
+
+    /// The surface of a box `min..max`, points every `step`.
+    fn boxed(min: [f64; 3], max: [f64; 3], step: f64) -> Vec<[f64; 3]> {
+        let mut v = Vec::new();
+        let n = |a: f64, b: f64| ((b - a) / step).round() as usize;
+        let (nx, ny, nz) = (n(min[0], max[0]), n(min[1], max[1]), n(min[2], max[2]));
+        for i in 0..=nx {
+            for j in 0..=ny {
+                for k in 0..=nz {
+                    let on = [i == 0 || i == nx, j == 0 || j == ny, k == 0 || k == nz];
+                    if on.iter().any(|&b| b) {
+                        let f = |a: f64, i: usize| a + i as f64 * step;
+                        v.push([f(min[0], i), f(min[1], j), f(min[2], k)]);
+                    }
+                }
+            }
+        }
+        v
+    }
+
+    struct Scene {
+        xyz: Vec<[f64; 3]>,
+        labels: Vec<u32>,
+        lab: Vec<[f32; 3]>,
+    }
+
+    impl Scene {
+        fn new() -> Self {
+            Scene {
+                xyz: Vec::new(),
+                labels: Vec::new(),
+                lab: Vec::new(),
+            }
+        }
+        fn add(
+            &mut self,
+            pts: Vec<[f64; 3]>,
+            label: u32,
+            colour: [f32; 3],
+        ) -> std::ops::Range<usize> {
+            let a = self.xyz.len();
+            self.labels.extend(std::iter::repeat_n(label, pts.len()));
+            self.lab.extend(std::iter::repeat_n(colour, pts.len()));
+            self.xyz.extend(pts);
+            a..self.xyz.len()
+        }
+        fn refine(&mut self) -> Refined {
+            let segments = self.labels.iter().copied().max().unwrap_or(0);
+            let wanted = vec![true; self.xyz.len()];
+            refine(
+                &self.xyz,
+                &mut self.labels,
+                segments,
+                &wanted,
+                Some(&self.lab),
+                [0.0; 3],
+                &RefineParams {
+                    voxel_m: 0.25,
+                    plane_tolerance_m: 0.05,
+                    dominant_fraction: 0.6,
+                    colour_tolerance: 10.0,
+                },
+            )
+        }
+        /// The one label of `r`'s points (panics if they differ).
+        fn one(&self, r: &std::ops::Range<usize>) -> u32 {
+            let l = self.labels[r.start];
+            assert!(
+                self.labels[r.clone()].iter().all(|&x| x == l),
+                "points of one surface split"
+            );
+            l
+        }
+    }
+
+    const WALL: [f32; 3] = [70.0, 5.0, 20.0];
+    const GLASS: [f32; 3] = [20.0, 0.0, -5.0];
+
+    /// A scan put a window's right half (10 cm behind the wall, in the wall's colour: its
+    /// frame) into the wall's segment; its left half is a segment of its own, in the glass's
+    /// colour. The refinement splits the right half off the wall's plane and joins it to the
+    /// left half, whose plane it lies on, although their colours differ.
+    #[test]
+    fn a_window_behind_its_wall_is_split_off_and_joins_its_other_half() {
+        let mut s = Scene::new();
+        let win = |x: f64, pt: &[f64; 3]| pt[0] >= x && pt[0] < 3.2 && pt[2] >= 1.0 && pt[2] < 2.2;
+        let w: Vec<[f64; 3]> = wall((0.0, 6.0), (0.0, 3.0), 0.0, 0.05)
+            .into_iter()
+            .filter(|p| !win(2.0, p))
+            .collect();
+        let glass = wall((2.0, 3.2), (1.0, 2.2), 0.1, 0.05);
+        let (left, right): (Vec<_>, Vec<_>) = glass.into_iter().partition(|p| p[0] < 2.6);
+        let wall_pts = s.add(w, 1, WALL);
+        let right = s.add(right, 1, WALL);
+        let left = s.add(left, 2, GLASS);
+        let r = s.refine();
+        assert_eq!(r.split_off, 1);
+        let (lw, lr, ll) = (s.one(&wall_pts), s.one(&right), s.one(&left));
+        assert_ne!(lw, lr, "the window stayed in the wall");
+        assert_eq!(lr, ll, "the window's halves stayed apart");
+        assert_eq!(r.segments, 2);
+    }
+
+    /// Unsegmented points within the tolerance of a segment's plane join it; the others form
+    /// segments of their own where they are enough (10 points), else stay unsegmented.
+    #[test]
+    fn unsegmented_points_join_a_plane_or_form_pieces() {
+        let mut s = Scene::new();
+        let w = s.add(wall((0.0, 4.0), (0.0, 3.0), 0.0, 0.1), 1, WALL);
+        let near = s.add(wall((1.0, 2.0), (1.0, 1.5), 0.03, 0.1), 0, WALL);
+        let box_pts = s.add(wall((1.0, 1.5), (1.0, 1.4), -1.0, 0.1), 0, GLASS);
+        let few = s.add(wall((3.0, 3.2), (2.0, 2.2), -1.0, 0.1), 0, GLASS);
+        let r = s.refine();
+        assert_eq!(r.attached, near.len());
+        assert_eq!(s.one(&near), s.one(&w));
+        let b = s.one(&box_pts);
+        assert!(b != 0 && b != s.one(&w));
+        assert_eq!(s.one(&few), 0, "{} points are no segment", few.len());
+        assert_eq!(r.leftover_segments, 1);
+    }
+
+    /// A car's glass (a small flat patch the scans found apart) joins the car's body that
+    /// encloses it; a smaller car parked 0.3 m behind touches the first in a few voxels only
+    /// and stays apart.
+    #[test]
+    fn an_object_takes_what_it_encloses_but_not_its_neighbour() {
+        let mut s = Scene::new();
+        let body = s.add(boxed([0.0, 0.0, 0.0], [4.0, 1.8, 1.4], 0.05), 1, WALL);
+        // Glass just above the roof, 1 m x 0.6 m.
+        let glass = s.add(
+            wall((1.5, 2.5), (0.6, 1.2), 0.0, 0.05)
+                .into_iter()
+                .map(|p| [p[0], p[2], 1.42])
+                .collect(),
+            2,
+            GLASS,
+        );
+        let other = s.add(boxed([4.3, 0.0, 0.0], [7.3, 1.8, 1.4], 0.05), 3, GLASS);
+        s.refine();
+        assert_eq!(
+            s.one(&glass),
+            s.one(&body),
+            "the glass stayed apart from its car"
+        );
+        assert_ne!(s.one(&other), s.one(&body), "two cars joined");
+    }
+
+    /// Two touching segments in one plane are one surface when their colours agree, two
+    /// buildings' façades when they do not.
+    #[test]
+    fn coplanar_neighbours_join_by_colour() {
+        for (colour, joined) in [([72.0, 6.0, 21.0], true), ([70.0, 35.0, 20.0], false)] {
+            let mut s = Scene::new();
+            let a = s.add(wall((0.0, 3.0), (0.0, 3.0), 0.0, 0.1), 1, WALL);
+            let b = s.add(wall((3.0, 6.0), (0.0, 3.0), 0.0, 0.1), 2, colour);
+            s.refine();
+            assert_eq!(s.one(&a) == s.one(&b), joined, "colour {colour:?}");
+        }
+    }
+}
