@@ -22,6 +22,27 @@ impl Plane {
         self.n[0] * p[0] + self.n[1] * p[1] + self.n[2] * p[2] - self.d
     }
 
+    /// The plane through `a`, `b` and `c` (normal `(b − a) × (c − a)`, normalised); `None` when
+    /// the three are (nearly) collinear: that cross product shorter than `min_cross`.
+    pub fn through(a: &[f64; 3], b: &[f64; 3], c: &[f64; 3], min_cross: f64) -> Option<Plane> {
+        let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
+        let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
+        let n = [
+            u[1] * v[2] - u[2] * v[1],
+            u[2] * v[0] - u[0] * v[2],
+            u[0] * v[1] - u[1] * v[0],
+        ];
+        let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+        if len < min_cross {
+            return None;
+        }
+        let n = [n[0] / len, n[1] / len, n[2] / len];
+        Some(Plane {
+            n,
+            d: n[0] * a[0] + n[1] * a[1] + n[2] * a[2],
+        })
+    }
+
     /// Absolute distance of `p` to the plane.
     #[inline]
     pub fn dist(&self, p: &[f64; 3]) -> f64 {

@@ -264,21 +264,8 @@ fn ransac(
             pts[cand[b] as usize],
             pts[cand[c] as usize],
         );
-        let u = [q[0] - p[0], q[1] - p[1], q[2] - p[2]];
-        let v = [r[0] - p[0], r[1] - p[1], r[2] - p[2]];
-        let n = [
-            u[1] * v[2] - u[2] * v[1],
-            u[2] * v[0] - u[0] * v[2],
-            u[0] * v[1] - u[1] * v[0],
-        ];
-        let l = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-        if l < 1e-12 {
+        let Some(pl) = Plane::through(&p, &q, &r, 1e-12) else {
             continue;
-        }
-        let n = [n[0] / l, n[1] / l, n[2] / l];
-        let pl = Plane {
-            n,
-            d: n[0] * p[0] + n[1] * p[1] + n[2] * p[2],
         };
         let count = cand
             .iter()

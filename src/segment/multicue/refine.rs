@@ -473,32 +473,19 @@ pub(super) fn dominant_plane(
     let scored: Vec<[f64; 3]> = idx.iter().step_by(step).map(|&i| pt(i)).collect();
     let seed = idx.len() as u64 ^ (idx[0] as u64) << 32;
     let mut rng = crate::rng::Rng(seed);
-    let mut best: Option<(usize, [f64; 3], f64)> = None;
+    let mut best: Option<(usize, Plane)> = None;
     for _ in 0..DOMINANT_HYPOTHESES {
         let [a, b, c] = [0; 3].map(|_| scored[rng.below(scored.len() as u32) as usize]);
-        let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
-        let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
-        let n = [
-            u[1] * v[2] - u[2] * v[1],
-            u[2] * v[0] - u[0] * v[2],
-            u[0] * v[1] - u[1] * v[0],
-        ];
-        let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
         // Collinear or repeated points span no plane.
-        if len < 1e-6 {
+        let Some(pl) = Plane::through(&a, &b, &c, 1e-6) else {
             continue;
-        }
-        let n = n.map(|x| x / len);
-        let d = n[0] * a[0] + n[1] * a[1] + n[2] * a[2];
-        let count = scored
-            .iter()
-            .filter(|q| (n[0] * q[0] + n[1] * q[1] + n[2] * q[2] - d).abs() <= tol)
-            .count();
-        if best.is_none_or(|(k, _, _)| count > k) {
-            best = Some((count, n, d));
+        };
+        let count = scored.iter().filter(|q| pl.dist(q) <= tol).count();
+        if best.is_none_or(|(k, _)| count > k) {
+            best = Some((count, pl));
         }
     }
-    let (_, n, d) = best?;
+    let (_, Plane { n, d }) = best?;
     // Refit to every point within the tolerance; the refitted plane must hold the share.
     let mut inliers = Moments::new([0.0; 3]);
     for &i in idx {
