@@ -67,7 +67,8 @@ fn bench_tiler(c: &mut Criterion) {
                     tile_size_m: 50.0,
                     buffer_m,
                 };
-                let mut tiler = Tiler::new(grid, &layout, &files, dir.path(), 512 << 20, 0.0);
+                let mut tiler =
+                    Tiler::new(grid, &layout, &files, dir.path(), 512 << 20, (0.0, 0.0));
                 tiler.push_chunk(0, 0, &recs).unwrap();
                 tiler.open_tiles()
             })

@@ -169,21 +169,34 @@ impl BudgetPlan {
             .fold(0.0, f64::max)
     }
 
-    /// Whether a tile of `n_core` + `n_buf` points, `n_near` of the buffer points within
-    /// [`BudgetPlan::near_m`] of the core, fits its share of the budget. Stages that work only
-    /// within their context of the core are charged their context bytes for the core and near
-    /// points (counted while binning, so exact whatever the point layout: an estimate from
+    /// Whether a tile of `n_core` + `n_buf` points, `n_near` of the buffer points within the
+    /// counted distance of the core (at least [`BudgetPlan::near_m`]; with far thinning, the
+    /// zone kept whole), fits its share of the budget. Stages that work
+    /// only within their context of the core are charged their context bytes for the core and
+    /// near points (counted while binning, so exact whatever the point layout: an estimate from
     /// the context's share of the buffer width undercharged split tiles threefold, whose
     /// thinned buffers are mostly near points) and their tile bytes for every point; 25 %
-    /// slack on both.
-    pub fn fits(&self, n_core: u64, n_buf: u64, n_near: u64) -> bool {
-        self.tile_bytes_needed(n_core, n_buf, n_near) <= self.tile_bytes
+    /// slack on both. `far`: the tile's far buffer is thinned while it loads.
+    pub fn fits(&self, n_core: u64, n_buf: u64, n_near: u64, far: Option<FarLoad>) -> bool {
+        self.tile_bytes_needed(n_core, n_buf, n_near, far) <= self.tile_bytes
     }
 
     /// Bytes a tile of `n_core` + `n_buf` points (`n_near` of them near) takes while processed,
-    /// as [`BudgetPlan::fits`] charges it.
-    pub fn tile_bytes_needed(&self, n_core: u64, n_buf: u64, n_near: u64) -> u64 {
-        let n = n_core + n_buf;
+    /// as [`BudgetPlan::fits`] charges it. With `far`, the tile holds its core points, the
+    /// `far.kept` buffer points of the zone kept whole and at most `far.cells` far ones, and while it loads the thinning holds up to
+    /// `far.held` far points (record and key each, charged like a tile point) and a map entry
+    /// per cell; that transient is charged in place of the stages' bytes, which come later.
+    pub fn tile_bytes_needed(
+        &self,
+        n_core: u64,
+        n_buf: u64,
+        n_near: u64,
+        far: Option<FarLoad>,
+    ) -> u64 {
+        let n = match far {
+            Some(f) => n_core + n_buf.min(f.kept + f.cells),
+            None => n_core + n_buf,
+        };
         let stage = self
             .stages
             .iter()
@@ -196,14 +209,23 @@ impl BudgetPlan {
             })
             .max()
             .unwrap_or(0);
-        n * self.base_bytes_per_point as u64 + stage
+        let loading = far.map_or(0, |f| {
+            f.held.min(n_buf) * self.base_bytes_per_point as u64 + f.cells * FAR_CELL_BYTES
+        });
+        n * self.base_bytes_per_point as u64 + stage.max(loading)
     }
 
     /// Memory tokens (shares of the tile memory, one per worker) a tile needs: 1 for a tile
     /// that [`BudgetPlan::fits`], up to [`BudgetPlan::tiles_in_flight`] for one that runs
     /// alone with the whole tile memory; None when even that is too little.
-    pub fn tokens_needed(&self, n_core: u64, n_buf: u64, n_near: u64) -> Option<usize> {
-        let need = self.tile_bytes_needed(n_core, n_buf, n_near);
+    pub fn tokens_needed(
+        &self,
+        n_core: u64,
+        n_buf: u64,
+        n_near: u64,
+        far: Option<FarLoad>,
+    ) -> Option<usize> {
+        let need = self.tile_bytes_needed(n_core, n_buf, n_near, far);
         let tokens = need.div_ceil(self.tile_bytes.max(1)).max(1);
         (tokens <= self.tiles_in_flight as u64).then_some(tokens as usize)
     }
@@ -257,6 +279,21 @@ impl BudgetPlan {
     }
 }
 
+/// Bounds of a tile's far-buffer thinning at load (`crate::tiling::load_tile`), for the charge.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FarLoad {
+    /// Buffer points in the zone kept whole (`TileJob::n_kept`: at least the near ones).
+    pub kept: u64,
+    /// Most far cells, hence far points kept.
+    pub cells: u64,
+    /// Most far points held while the representatives are chosen.
+    pub held: u64,
+}
+
+/// Bytes per far cell while a tile's far buffer is thinned: a hash-map entry (key, count, the
+/// held list's header: 48 bytes) at the map's worst load after growth, rounded up.
+const FAR_CELL_BYTES: u64 = 128;
+
 /// Share of the tile memory reserved for the stitcher (see [`BudgetPlan::reserve_stitch`]).
 pub const STITCH_SHARE: f64 = 0.15;
 
@@ -288,11 +325,44 @@ mod tests {
         let p = BudgetPlan::with_stages(1024, 34, &[StageMemory::whole(96), ctx], 2).unwrap();
         let m = p.max_tile_points;
         assert_eq!(p.near_m(), 5.0);
-        assert!(p.fits(m / 2, m / 2, m / 8));
+        assert!(p.fits(m / 2, m / 2, m / 8, None));
         // Twice the worst-case limit fits when most points are buffer the stage ignores...
-        assert!(p.fits(m / 4, 7 * m / 4, m / 4));
+        assert!(p.fits(m / 4, 7 * m / 4, m / 4, None));
         // ...but not when they lie within its context, nor when they are core points.
-        assert!(!p.fits(m / 4, 7 * m / 4, 7 * m / 4));
-        assert!(!p.fits(2 * m, 0, 0));
+        assert!(!p.fits(m / 4, 7 * m / 4, 7 * m / 4, None));
+        assert!(!p.fits(2 * m, 0, 0, None));
+    }
+
+    #[test]
+    fn a_far_thinned_buffer_is_charged_for_what_is_kept() {
+        let p = BudgetPlan::with_stages(1024, 34, &[StageMemory::whole(96)], 2).unwrap();
+        let m = p.max_tile_points;
+        let (n_core, n_buf, n_near) = (m / 2, 4 * m, m / 4);
+        assert!(!p.fits(n_core, n_buf, n_near, None));
+        let thin = FarLoad {
+            kept: n_near,
+            cells: m / 8,
+            held: m / 4,
+        };
+        // Kept: core + near + one point per far cell; what loading holds stays below the
+        // stages' bytes for those.
+        assert!(p.fits(n_core, n_buf, n_near, Some(thin)));
+        let kept = n_core + n_near + m / 8;
+        assert_eq!(
+            p.tile_bytes_needed(n_core, n_buf, n_near, Some(thin)),
+            p.tile_bytes_needed(kept, 0, 0, None)
+        );
+        // Points of the kept zone are never thinned.
+        let whole = FarLoad {
+            kept: n_buf,
+            ..thin
+        };
+        assert!(!p.fits(n_core, n_buf, n_near, Some(whole)));
+        // Holding many far points while loading is charged.
+        let greedy = FarLoad {
+            held: 4 * m,
+            ..thin
+        };
+        assert!(!p.fits(n_core, n_buf, n_near, Some(greedy)));
     }
 }

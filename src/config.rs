@@ -19,6 +19,8 @@ const MAX_CONFIG_BYTES: u64 = 1 << 20;
 const RENAMED: &[(&str, &str)] = &[
     ("segment.buffer_m", "segment.context_m"),
     ("label.buffer_m", "label.context_m"),
+    ("tiling.thin_split_buffers", "tiling.thin_far_buffers"),
+    ("tiling.split_dense_buffer_m", "tiling.dense_buffer_m"),
 ];
 
 /// The compiled-in default configuration.
@@ -34,10 +36,11 @@ pub struct TilingParams {
     pub buffer_m: f64,
     /// Smallest core edge quadtree splitting may produce, metres.
     pub min_tile_size_m: f64,
-    /// Thin the far part of split tiles' buffers (see `tiling::FarThin`).
-    pub thin_split_buffers: bool,
-    /// Split tiles keep every buffer point within this distance of their core, metres.
-    pub split_dense_buffer_m: f64,
+    /// Thin the far part of tiles' buffers (see `tiling::FarThin`).
+    pub thin_far_buffers: bool,
+    /// Tiles keep every buffer point within this distance of their core, metres (beyond the
+    /// stages' contexts, which are always kept whole).
+    pub dense_buffer_m: f64,
 }
 
 /// Pipeline resource parameters.
@@ -330,10 +333,8 @@ impl Config {
                 t.buffer_m
             )));
         }
-        if !(t.split_dense_buffer_m.is_finite() && t.split_dense_buffer_m >= 0.0) {
-            return Err(Error::Config(
-                "tiling.split_dense_buffer_m must be >= 0".into(),
-            ));
+        if !(t.dense_buffer_m.is_finite() && t.dense_buffer_m >= 0.0) {
+            return Err(Error::Config("tiling.dense_buffer_m must be >= 0".into()));
         }
         if !(t.min_tile_size_m.is_finite() && t.min_tile_size_m > 0.0) {
             return Err(Error::Config(

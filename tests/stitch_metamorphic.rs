@@ -172,8 +172,9 @@ fn check(inputs: &[PathBuf], precision_m: f64, what: &str, work: &Path) {
     let segmented = base.seg.iter().filter(|&&s| s != 0).count();
     println!("{what}: untiled: {n} points, {segmented} in segments");
     assert!(segmented > n / 10, "{what}: too little segmented to test");
-    // The last run splits 50 m tiles down the quadtree at a 400 MiB budget: split children
-    // thin their far buffers (tiling.thin_split_buffers) and the stitcher trims the records
+    // Every run thins the tiles' far buffers as they load (tiling.thin_far_buffers). The last
+    // splits 50 m tiles down the quadtree at a 400 MiB budget: split children thin their far
+    // buffers when split and the stitcher trims the records
     // of split cells as leaves arrive; both must leave the results as they are.
     for (tile, split) in [(25.0, false), (50.0, false), (100.0, false), (50.0, true)] {
         let dir = work.join(format!("t{tile}{}", if split { "split" } else { "" }));

@@ -291,6 +291,7 @@ fn execute(
         spill_dir: &plan.spill_dir,
         spill_bytes: budget.spill_bytes,
         near_m: budget.near_m(),
+        kept_m: plan.kept_m(),
         scope: scope.map(|s| &s.cells),
     };
     let tokens = tokens::MemoryTokens::new(budget.tiles_in_flight);

@@ -35,7 +35,7 @@ pub struct RunPlan {
     pub budget: BudgetPlan,
     /// Stitching, when a stage assigns segment ids and `stitch.enabled`.
     pub stitch: Option<StitchPlan>,
-    /// Far-buffer thinning of split tiles, when the stages allow it.
+    /// Far-buffer thinning of tiles, when the stages allow it.
     pub far_thin: Option<FarThin>,
     /// Smallest core edge quadtree splitting may produce, metres.
     pub min_tile_size_m: f64,
@@ -179,6 +179,16 @@ impl RunPlan {
         Ok(w)
     }
 
+    /// Distance from a core within which the tiler counts the buffer points far thinning
+    /// keeps whole ([`crate::tiling::TileJob::n_kept`], [`FarThin::count_m`]), so that a
+    /// thinned tile's points are bounded by those and its far cells; 0 without thinning.
+    pub fn kept_m(&self) -> f64 {
+        match self.far_thin {
+            Some(f) if f.applies(self.grid.buffer_m) => f.count_m(),
+            _ => 0.0,
+        }
+    }
+
     /// How a worker splits a job too big for its share of the budget.
     pub fn split_params(&self) -> SplitParams {
         SplitParams {
@@ -278,12 +288,12 @@ fn stitch_plan(cfg: &Config, segmenter: &dyn Stage, set: &InputSet) -> StitchPla
     }
 }
 
-/// Far-buffer thinning for split tiles: allowed when every stage that reads the whole buffer
+/// Far-buffer thinning of tiles (as they load and when split): allowed when every stage that reads the whole buffer
 /// names its far cells ([`Stage::far_cells`]) and they agree; points within the widest bounded
 /// context of the other stages, and at least within `tiling.split_dense_buffer_m`, are all
 /// kept.
 fn far_thin(cfg: &Config, stages: &[Box<dyn Stage>]) -> Option<FarThin> {
-    if !cfg.tiling.thin_split_buffers {
+    if !cfg.tiling.thin_far_buffers {
         return None;
     }
     let readers: Vec<&dyn Stage> = stages
@@ -305,7 +315,7 @@ fn far_thin(cfg: &Config, stages: &[Box<dyn Stage>]) -> Option<FarThin> {
         .filter_map(|s| s.context_m())
         .fold(0.0f64, f64::max);
     Some(FarThin {
-        near_m: near_m.max(cfg.tiling.split_dense_buffer_m),
+        near_m: near_m.max(cfg.tiling.dense_buffer_m),
         cells: cells?,
     })
 }

@@ -24,6 +24,8 @@ pub(super) struct TilerRole<'a> {
     pub spill_bytes: usize,
     /// Buffer points within this distance of a core are counted per job (`TileJob::n_near`).
     pub near_m: f64,
+    /// ... and within this one (`TileJob::n_kept`, for far thinning; 0: not counted).
+    pub kept_m: f64,
     /// A task of a distributed run: only these cells are binned.
     pub scope: Option<&'a std::collections::HashSet<crate::model::CellKey>>,
 }
@@ -68,7 +70,7 @@ impl TilerRole<'_> {
             self.files,
             self.spill_dir,
             self.spill_bytes,
-            self.near_m,
+            (self.near_m, self.kept_m),
         );
         if let Some(cells) = self.scope {
             tiler.restrict(cells);

@@ -7,7 +7,7 @@ use super::journal::{part_files, FailedEntry, ResumeState, TileEntry, TileResult
 use super::plan::StitchPlan;
 use super::tokens::MemoryTokens;
 use super::writer::{Processed, TileMeta, TileOutput, ToWriter};
-use crate::budget::BudgetPlan;
+use crate::budget::{BudgetPlan, FarLoad};
 use crate::error::{Error, Result};
 use crate::io::output::{segment_table_tsv, TileSegments};
 use crate::io::TileWriter;
@@ -16,7 +16,7 @@ use crate::report::FailedTile;
 use crate::stages::{Stage, StageWork, TileReport};
 use crate::stitch::BorderSummary;
 use crate::sys::{alloc, ThreadClocks};
-use crate::tiling::{load_tile, split_job, SplitParams, TileBuffers, TileJob};
+use crate::tiling::{load_tile, split_job, SplitParams, TileBuffers, TileJob, FAR_KEEP};
 use crossbeam_channel::{Receiver, Sender};
 use std::path::Path;
 use std::time::Instant;
@@ -224,7 +224,10 @@ impl WorkerRole<'_> {
         let mut was_split = false;
         let mut thinned = 0;
         while let Some(job) = todo.pop() {
-            let tokens = self.budget.tokens_needed(job.n_core, job.n_buf, job.n_near);
+            let far = self.far_load(&job);
+            let tokens = self
+                .budget
+                .tokens_needed(job.n_core, job.n_buf, job.n_near, far);
             if self.should_split(&job, tokens) {
                 was_split = true;
                 // The split's buffers take the place of a loaded tile: give back the tokens
@@ -260,10 +263,15 @@ impl WorkerRole<'_> {
                 );
             }
             held.hold(tokens);
-            let tile = load_tile(job, self.layout, std::mem::take(&mut held.spare))?;
+            let (tile, dropped_at_load) = load_tile(
+                job,
+                self.layout,
+                std::mem::take(&mut held.spare),
+                self.split.far,
+            )?;
             let (name, n_core) = (tile.name.to_string(), tile.n_core as u64);
             let split_root = was_split.then(|| root.clone());
-            let dropped = std::mem::take(&mut thinned);
+            let dropped = std::mem::take(&mut thinned) + dropped_at_load;
             let r = self.process(
                 tile,
                 &mut held.spare,
@@ -290,6 +298,21 @@ impl WorkerRole<'_> {
             reused: false,
         });
         Ok(())
+    }
+
+    /// The far thinning `load_tile` applies to `job`, as the budget charges it: at most one
+    /// point per far cell kept, at most [`FAR_KEEP`] per cell held meanwhile.
+    fn far_load(&self, job: &TileJob) -> Option<FarLoad> {
+        let f = self
+            .split
+            .far
+            .filter(|f| !job.far_thinned && f.applies(job.buffer_m))?;
+        let cells = f.far_cells(job.core, job.buffer_m);
+        Some(FarLoad {
+            kept: job.n_kept,
+            cells,
+            held: job.n_buf.min(cells.saturating_mul(FAR_KEEP as u64)),
+        })
     }
 
     /// Whether a job is split rather than loaded. One that fits a worker's share is loaded.

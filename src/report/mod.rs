@@ -114,8 +114,8 @@ pub struct Summary {
     pub tiles_split: usize,
     /// Names of the split grid tiles.
     pub split_tiles: Vec<String>,
-    /// Buffer point copies split tiles dropped beyond the stages' context (`tiling.
-    /// thin_split_buffers`); never core points.
+    /// Buffer point copies tiles dropped beyond the stages' context as they loaded or split
+    /// (`tiling.thin_far_buffers`); never core points.
     pub buffer_points_thinned: u64,
     /// Wall seconds per phase and summed worker seconds per stage.
     pub seconds: BTreeMap<String, f64>,

@@ -71,7 +71,7 @@ pub trait Stage: Send + Sync {
     /// For a stage reading the whole buffer (`context_m` None): cells such that, beyond the
     /// other stages' context, the stage only uses one representative point per cell, picked by
     /// [`crate::geom::cell_representative`]. None: it needs every buffer point. Lets
-    /// split tiles thin their far buffers ([`crate::tiling::FarThin`]).
+    /// tiles thin their far buffers ([`crate::tiling::FarThin`]).
     fn far_cells(&self) -> Option<crate::tiling::FarCells> {
         None
     }

@@ -38,4 +38,10 @@ pub struct TileJob {
     /// Of those, the points within `near_m` of the core (the stages' widest bounded context):
     /// what those stages hold (`BudgetPlan::fits`).
     pub n_near: u64,
+    /// Of the buffer points, those within [`crate::tiling::FarThin::count_m`] of the core,
+    /// which far thinning keeps whole (0 when the run does not thin).
+    pub n_kept: u64,
+    /// Whether the far part of the buffer holds only cell representatives already (a split
+    /// child, [`crate::tiling::FarThin`]); a grid tile's buffer is thinned while it loads.
+    pub far_thinned: bool,
 }

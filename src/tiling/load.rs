@@ -35,9 +35,31 @@ impl TileBuffers {
 
 /// Reads a tile's points into memory (core points first) in `spare`'s buffers, deleting its
 /// spill files and freeing its in-memory tails.
-pub fn load_tile(mut job: TileJob, layout: &RecordLayout, spare: TileBuffers) -> Result<Tile> {
-    let n = (job.n_core + job.n_buf) as usize;
+///
+/// With `far` set (and a far zone within the buffer: [`FarThin::applies`]), the buffer beyond
+/// the kept zone keeps one representative per far cell, as a split child's does ([`FarThin`]):
+/// a grid tile's buffer is the stages' contexts at full density plus a thin ring for the ground
+/// filter's seeds instead of the whole buffer. The second value returned counts the buffer
+/// points dropped that way (0 for a job [`split_job`] has thinned already).
+pub fn load_tile(
+    mut job: TileJob,
+    layout: &RecordLayout,
+    spare: TileBuffers,
+    far: Option<FarThin>,
+) -> Result<(Tile, u64)> {
     let rl = layout.record_len;
+    let far = far.filter(|f| !job.far_thinned && f.applies(job.buffer_m));
+    // Exact bound of what is kept (the kept zone lies within the counted one, see
+    // `FarThin::count_m`), so the buffers are allocated once.
+    let n = match far {
+        Some(f) => {
+            job.n_core
+                + job
+                    .n_buf
+                    .min(job.n_kept + f.far_cells(job.core, job.buffer_m))
+        }
+        None => job.n_core + job.n_buf,
+    } as usize;
     let TileBuffers {
         mut records,
         mut ids,
@@ -49,16 +71,103 @@ pub fn load_tile(mut job: TileJob, layout: &RecordLayout, spare: TileBuffers) ->
     records.reserve_exact(n * rl);
     ids.reserve_exact(n);
     xyz.reserve_exact(n);
-    for part in [&job.core_part, &job.buf_part] {
-        part.for_each(rl, BLOCK_POINTS, |id, rec| {
-            records.extend_from_slice(rec);
-            ids.push(id);
-            xyz.push(layout.xyz(rec));
+    let mut push = |id: u64, rec: &[u8], p: [f64; 3]| {
+        records.extend_from_slice(rec);
+        ids.push(id);
+        xyz.push(p);
+    };
+    job.core_part.for_each(rl, BLOCK_POINTS, |id, rec| {
+        push(id, rec, layout.xyz(rec));
+        Ok(())
+    })?;
+    let mut thinned = 0;
+    match far {
+        None => job.buf_part.for_each(rl, BLOCK_POINTS, |id, rec| {
+            push(id, rec, layout.xyz(rec));
             Ok(())
-        })?;
+        })?,
+        Some(f) => {
+            let near = f.near_cells(job.core);
+            let cell_m = f.cells.cell_m;
+            let key = |p: [f64; 3]| (cell_of(p[0], cell_m), cell_of(p[1], cell_m));
+            let mut keeper = FarKeeper::new(f.cells, rl);
+            // Per slab slot of the keeper: the point's place in the buffer (its ordinal, and
+            // how many kept-whole points come before it).
+            let mut place: Vec<(u64, u64)> = Vec::new();
+            let mut note = |slot: Option<u32>, at: (u64, u64)| {
+                if let Some(s) = slot.map(|s| s as usize) {
+                    if place.len() <= s {
+                        place.resize(s + 1, (0, 0));
+                    }
+                    place[s] = at;
+                }
+            };
+            let (mut seq, mut whole) = (0u64, 0u64);
+            job.buf_part.for_each(rl, BLOCK_POINTS, |id, rec| {
+                let p = layout.xyz(rec);
+                let k = key(p);
+                if in_cells(near, k) {
+                    push(id, rec, p);
+                    whole += 1;
+                } else {
+                    note(keeper.offer(k, p[2], id, rec), (seq, whole));
+                }
+                seq += 1;
+                Ok(())
+            })?;
+            if !keeper.undecided().is_empty() {
+                // Only cells `undecided` opened take points (near cells were never offered).
+                let (mut seq, mut whole) = (0u64, 0u64);
+                job.buf_part.for_each(rl, BLOCK_POINTS, |id, rec| {
+                    let p = layout.xyz(rec);
+                    let k = key(p);
+                    if in_cells(near, k) {
+                        whole += 1;
+                    } else {
+                        note(keeper.offer_all(k, p[2], id, rec), (seq, whole));
+                    }
+                    seq += 1;
+                    Ok(())
+                })?;
+            }
+            let offered = keeper.offered;
+            let mut reps: Vec<((u64, u64), u64, usize)> = Vec::new();
+            let mut rep_records = Vec::new();
+            let kept = keeper.drain(|id, rec, slot| {
+                reps.push((place[slot as usize], id, reps.len()));
+                rep_records.extend_from_slice(rec);
+                Ok(())
+            })?;
+            thinned = offered - kept;
+            // The representatives go where they were in the buffer: the tile is the unthinned
+            // tile less the dropped points, in the same order, so the ground filter's ties
+            // (broken by point index) fall as without thinning.
+            reps.sort_unstable_by_key(|r| r.0 .0);
+            let first = job.n_core as usize;
+            let mut read = records.len() / rl;
+            let total = read + reps.len();
+            records.resize(total * rl, 0);
+            ids.resize(total, 0);
+            xyz.resize(total, [0.0; 3]);
+            let mut write = total;
+            for &((_, before), id, r) in reps.iter().rev() {
+                while read > first + before as usize {
+                    read -= 1;
+                    write -= 1;
+                    records.copy_within(read * rl..(read + 1) * rl, write * rl);
+                    ids[write] = ids[read];
+                    xyz[write] = xyz[read];
+                }
+                write -= 1;
+                let rec = &rep_records[r * rl..(r + 1) * rl];
+                records[write * rl..(write + 1) * rl].copy_from_slice(rec);
+                ids[write] = id;
+                xyz[write] = layout.xyz(rec);
+            }
+        }
     }
     remove_spill(&mut job);
-    Ok(Tile {
+    let tile = Tile {
         id: job.id,
         name: job.name,
         core: job.core,
@@ -69,7 +178,8 @@ pub fn load_tile(mut job: TileJob, layout: &RecordLayout, spare: TileBuffers) ->
         n_core: job.n_core as usize,
         segments: Vec::new(),
         segment_table: Vec::new(),
-    })
+    };
+    Ok((tile, thinned))
 }
 
 fn remove_spill(job: &mut TileJob) {
@@ -143,7 +253,7 @@ pub fn split_job(
     let mut thinned = 0;
     for (q, keeper) in keepers.into_iter().enumerate() {
         let offered = keeper.offered;
-        let kept = keeper.drain(|pid, rec| set.push(slots[q], Part::Buffer, pid, rec))?;
+        let kept = keeper.drain(|pid, rec, _| set.push(slots[q], Part::Buffer, pid, rec))?;
         thinned += offered - kept;
     }
     let mut out = Vec::new();
@@ -165,6 +275,8 @@ pub fn split_job(
             n_core,
             n_buf,
             n_near: done.near,
+            n_kept: done.kept,
+            far_thinned: far.is_some(),
         };
         if n_core == 0 {
             remove_spill(&mut child);
@@ -232,17 +344,7 @@ impl Routing {
         let cell_m = far.map_or(1.0, |f| f.cells.cell_m);
         let near: Vec<Option<[i64; 4]>> = rects
             .iter()
-            .map(|r| {
-                far.filter(|f| f.near_m < b).map(|f| {
-                    let n = r.expanded(f.near_m);
-                    [
-                        cell_of(n.x0, cell_m),
-                        cell_of(n.y0, cell_m),
-                        cell_of(n.x1, cell_m),
-                        cell_of(n.y1, cell_m),
-                    ]
-                })
-            })
+            .map(|r| far.filter(|f| f.applies(b)).map(|f| f.near_cells(*r)))
             .collect();
         Routing {
             xm,
@@ -267,10 +369,8 @@ impl Routing {
 
     /// [`Routing::far_cell`] of a point in far-grid cell `(cx, cy)`.
     #[inline]
-    fn far_key(&self, q: usize, (cx, cy): (i64, i64)) -> Option<(i64, i64)> {
-        let [cx0, cy0, cx1, cy1] = self.near[q]?;
-        let inside = (cx0..=cx1).contains(&cx) && (cy0..=cy1).contains(&cy);
-        (!inside).then_some((cx, cy))
+    fn far_key(&self, q: usize, key: (i64, i64)) -> Option<(i64, i64)> {
+        (!in_cells(self.near[q]?, key)).then_some(key)
     }
 
     /// First pass over the parent's points: core and near buffer points into the children's
@@ -296,11 +396,17 @@ impl Routing {
                         set.push(slots[q], Part::Core, pid, rec)?;
                     } else if self.outer[q].contains(x, y) {
                         match self.far_key(q, cell) {
-                            Some(key) => keepers[q].offer(key, z, pid, rec),
+                            Some(key) => {
+                                keepers[q].offer(key, z, pid, rec);
+                            }
                             None => {
                                 set.push(slots[q], Part::Buffer, pid, rec)?;
                                 if self.counted[q].contains(x, y) {
                                     set.count_near(slots[q]);
+                                }
+                                // Kept whole (a split child's count is exact).
+                                if self.near[q].is_some() {
+                                    set.count_kept(slots[q]);
                                 }
                             }
                         }
@@ -364,9 +470,13 @@ pub struct FarCells {
     pub window_m: f64,
 }
 
-/// Thinning of the far part of a split child's buffer.
+/// Thinning of the far part of a tile's buffer: as a grid tile loads ([`load_tile`]), and as
+/// a split hands points to its children ([`split_job`]).
 ///
-/// Why: a quadtree child keeps the parent's buffer width (the ground filter needs a whole seed
+/// Why, for every tile: the ground filter needs the whole buffer width, the other stages only
+/// their context of the core; a 50 m tile with a 20 m buffer on a street otherwise carried
+/// and ground-filtered 3.3 tile points per input point (the demo), 2.0 thinned, with the same
+/// output bit for bit. Why, for splits: a quadtree child keeps the parent's buffer width (the ground filter needs a whole seed
 /// cell of context), so a deep split of a dense tile would otherwise copy and load the full
 /// buffer for every small child: at four levels a 3 m core carried a 43 m square of buffer
 /// (~200× its own points) and the split never converged on a simulated drive. Stages other
@@ -382,11 +492,57 @@ pub struct FarCells {
 /// Buffer points are never written, only core points are, so no output point is lost.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FarThin {
-    /// Buffer points within this distance of the child's core are all kept, metres (at least
-    /// the stages' contexts and `tiling.split_dense_buffer_m`).
+    /// Buffer points within this distance of the tile's core are all kept, metres (at least
+    /// the stages' contexts and `tiling.dense_buffer_m`).
     pub near_m: f64,
     /// Cells and rule of the far zone.
     pub cells: FarCells,
+}
+
+impl FarThin {
+    /// Whether a tile with this buffer width has a far zone at all.
+    pub fn applies(&self, buffer_m: f64) -> bool {
+        self.near_m < buffer_m
+    }
+
+    /// The far-grid cells kept whole around `core`: those touching its near zone
+    /// (`[x0, y0, x1, y1]`, inclusive).
+    pub fn near_cells(&self, core: Rect) -> [i64; 4] {
+        let n = core.expanded(self.near_m);
+        let c = self.cells.cell_m;
+        [
+            cell_of(n.x0, c),
+            cell_of(n.y0, c),
+            cell_of(n.x1, c),
+            cell_of(n.y1, c),
+        ]
+    }
+
+    /// Distance from the core within which every point of the cells kept whole lies (a cell
+    /// touching the near zone reaches at most one cell beyond it; a millimetre more for the
+    /// rounding of `floor`): the tiler and the split count buffer points within it as near
+    /// ([`TileJob::n_near`]), so near + far cells bound a thinned tile's points.
+    pub fn count_m(&self) -> f64 {
+        self.near_m + self.cells.cell_m + 1e-3
+    }
+
+    /// Most far cells (hence kept far points) of a tile with this core and buffer: the cells
+    /// of the buffered square minus those kept whole.
+    pub fn far_cells(&self, core: Rect, buffer_m: f64) -> u64 {
+        let c = self.cells.cell_m;
+        let o = core.expanded(buffer_m);
+        let span = |a: i64, b: i64| (b - a + 1).max(0) as u64;
+        let outer =
+            span(cell_of(o.x0, c), cell_of(o.x1, c)) * span(cell_of(o.y0, c), cell_of(o.y1, c));
+        let [x0, y0, x1, y1] = self.near_cells(core);
+        outer.saturating_sub(span(x0, x1) * span(y0, y1))
+    }
+}
+
+/// Whether far-grid cell `key` lies in the inclusive cell range `[x0, y0, x1, y1]`.
+#[inline]
+fn in_cells([x0, y0, x1, y1]: [i64; 4], (cx, cy): (i64, i64)) -> bool {
+    (x0..=x1).contains(&cx) && (y0..=y1).contains(&cy)
 }
 
 /// A kept far point: height, point id, slab slot.
@@ -417,13 +573,14 @@ impl FarKeeper {
         }
     }
 
-    fn offer(&mut self, key: (i64, i64), z: f64, pid: u64, rec: &[u8]) {
+    /// First pass: one far point. Returns the slab slot it was stored in, if it was held.
+    fn offer(&mut self, key: (i64, i64), z: f64, pid: u64, rec: &[u8]) -> Option<u32> {
         self.offered += 1;
         let (count, cell) = self.cells.entry(key).or_default();
         *count += 1;
         // Most points of a dense cell lie above its full list of lowest: no search for them.
         if cell.len() == FAR_KEEP && cell.last().is_some_and(|e| (e.0, e.1) < (z, pid)) {
-            return;
+            return None;
         }
         // Sorted by (z, point id): the result does not depend on the order points arrive in.
         let pos = cell.partition_point(|e| (e.0, e.1) < (z, pid));
@@ -431,12 +588,16 @@ impl FarKeeper {
             let slot = (self.slab.len() / self.rl) as u32;
             self.slab.extend_from_slice(rec);
             cell.insert(pos, (z, pid, slot));
+            Some(slot)
         } else if pos < FAR_KEEP {
             // Evict the highest and reuse its slab slot.
             let (_, _, slot) = cell.pop().unwrap_or((0.0, 0, 0));
             let at = slot as usize * self.rl;
             self.slab[at..at + self.rl].copy_from_slice(rec);
             cell.insert(pos, (z, pid, slot));
+            Some(slot)
+        } else {
+            None
         }
     }
 
@@ -459,18 +620,19 @@ impl FarKeeper {
         open
     }
 
-    /// Second pass: one point of an undecided cell.
-    fn offer_all(&mut self, key: (i64, i64), z: f64, pid: u64, rec: &[u8]) {
-        if let Some(all) = self.all.get_mut(&key) {
-            let slot = (self.slab.len() / self.rl) as u32;
-            self.slab.extend_from_slice(rec);
-            all.push((z, pid, slot));
-        }
+    /// Second pass: one point of an undecided cell (others are ignored). Returns the slab slot
+    /// it was stored in.
+    fn offer_all(&mut self, key: (i64, i64), z: f64, pid: u64, rec: &[u8]) -> Option<u32> {
+        let all = self.all.get_mut(&key)?;
+        let slot = (self.slab.len() / self.rl) as u32;
+        self.slab.extend_from_slice(rec);
+        all.push((z, pid, slot));
+        Some(slot)
     }
 
-    /// Hands each cell's representative over, ordered by cell (deterministic); returns how
-    /// many points that is.
-    fn drain(mut self, mut f: impl FnMut(u64, &[u8]) -> Result<()>) -> Result<u64> {
+    /// Hands each cell's representative over (point id, record, slab slot), ordered by cell
+    /// (deterministic); returns how many points that is.
+    fn drain(mut self, mut f: impl FnMut(u64, &[u8], u32) -> Result<()>) -> Result<u64> {
         let w = self.rule.window_m;
         let mut cells: Vec<_> = self.cells.drain().collect();
         cells.sort_unstable_by_key(|c| c.0);
@@ -490,7 +652,7 @@ impl FarKeeper {
             if let Some((_, pid, slot)) = chosen {
                 kept += 1;
                 let at = slot as usize * self.rl;
-                f(pid, &self.slab[at..at + self.rl])?;
+                f(pid, &self.slab[at..at + self.rl], slot)?;
             }
         }
         Ok(kept)
@@ -560,19 +722,19 @@ mod tests {
             rec
         };
         for &(key, z, p) in &offers {
-            keeper.offer(key, z, p, &rec(z, p));
+            let _ = keeper.offer(key, z, p, &rec(z, p));
         }
         let undecided = keeper.undecided();
         assert_eq!(undecided.len(), open);
         assert!(open > 0 && open < 200, "{open}");
         for &(key, z, p) in &offers {
             if undecided.contains(&key) {
-                keeper.offer_all(key, z, p, &rec(z, p));
+                keeper.offer_all(key, z, p, &rec(z, p)).unwrap();
             }
         }
         let mut got = Vec::new();
         let kept = keeper
-            .drain(|p, rec| {
+            .drain(|p, rec, _| {
                 assert_eq!(u64::from_le_bytes(rec[..8].try_into().unwrap()), p);
                 got.push(p);
                 Ok(())
@@ -584,19 +746,13 @@ mod tests {
         assert_eq!(got, expected);
     }
 
-    /// A split of a tile with a random cloud: every child's near zone (core + 5 m) holds all
-    /// its points and is counted exactly in `n_near`; beyond it at most one point per far
-    /// cell remains; every parent core point lands in exactly one child core.
-    #[test]
-    fn split_counts_near_points_and_thins_only_far_cells() {
+    /// A test point: x, y, z, point id, part.
+    type TestPoint = (f64, f64, f64, u64, Part);
+
+    /// A grid tile's job (core 0..40 m, buffer 20 m, spill in `dir`) of a random cloud of
+    /// `n` points, z in 0..3 m; also each point's (x, y, z, id, part).
+    fn random_job(dir: &Path, layout: &RecordLayout, n: u64) -> (TileJob, Vec<TestPoint>) {
         use crate::model::TileId;
-        use las::{point::Format, Transform, Vector};
-        let dir = tempfile::tempdir().unwrap();
-        let t = Transform {
-            scale: 0.01,
-            offset: 0.0,
-        };
-        let layout = RecordLayout::new(Format::new(0).unwrap(), Vector { x: t, y: t, z: t });
         let id = TileId::grid(0, 0);
         let core = Rect {
             x0: 0.0,
@@ -606,24 +762,24 @@ mod tests {
         };
         let mut rng = crate::rng::Rng(0x9e37_79b9_7f4a_7c15);
         let mut next = move || rng.u();
-        let mut set = SpillSet::new(dir.path(), 1 << 20);
+        let mut set = SpillSet::new(dir, 1 << 20);
         let slot = set.slot(id);
         let mut points = Vec::new();
-        for pid in 0..60_000u64 {
+        for pid in 0..n {
             let (x, y, z) = (-20.0 + 80.0 * next(), -20.0 + 80.0 * next(), 3.0 * next());
             let mut rec = vec![0u8; layout.record_len];
             for (k, v) in [x, y, z].into_iter().enumerate() {
                 let raw = (v / 0.01).round() as i32;
                 rec[4 * k..4 * k + 4].copy_from_slice(&raw.to_le_bytes());
             }
-            let [x, y, _] = layout.xyz(&rec);
+            let [x, y, z] = layout.xyz(&rec);
             let part = if core.contains(x, y) {
                 Part::Core
             } else {
                 Part::Buffer
             };
             set.push(slot, part, pid, &rec).unwrap();
-            points.push((x, y, part));
+            points.push((x, y, z, pid, part));
         }
         let done = set.finish(id).unwrap();
         let job = TileJob {
@@ -638,15 +794,117 @@ mod tests {
             n_buf: done.buf.points(),
             core_part: done.core,
             buf_part: done.buf,
-            n_near: 0,
+            n_near: done.near,
+            n_kept: done.kept,
+            far_thinned: false,
         };
-        let far = FarThin {
+        (job, points)
+    }
+
+    fn test_layout() -> RecordLayout {
+        use las::{point::Format, Transform, Vector};
+        let t = Transform {
+            scale: 0.01,
+            offset: 0.0,
+        };
+        RecordLayout::new(Format::new(0).unwrap(), Vector { x: t, y: t, z: t })
+    }
+
+    fn test_far() -> FarThin {
+        FarThin {
             near_m: 5.0,
             cells: FarCells {
                 cell_m: 0.5,
                 window_m: 0.15,
             },
-        };
+        }
+    }
+
+    /// A grid tile loaded with far thinning: every core point and every buffer point of the
+    /// cells kept whole, and of each far cell exactly the point the ground filter's rule picks
+    /// from all of the cell's buffer points, in the unthinned tile's order; no more points than
+    /// the budget's bound (core + points within `count_m` + far cells); without thinning (or
+    /// thinned by a split already), every point.
+    #[test]
+    fn load_thins_a_grid_tiles_far_cells_to_their_representatives() {
+        let dir = tempfile::tempdir().unwrap();
+        let layout = test_layout();
+        let far = test_far();
+        let (job, points) = random_job(dir.path(), &layout, 60_000);
+        let (core, b) = (job.core, job.buffer_m);
+        let counted = core.expanded(far.count_m());
+        let n_kept = points
+            .iter()
+            .filter(|p| p.4 == Part::Buffer && counted.contains(p.0, p.1))
+            .count() as u64;
+        let bound = job.n_core + n_kept + far.far_cells(core, b);
+        // The loader sizes its buffers by the count (the tiler's; this job has none).
+        let mut job = job;
+        job.n_kept = n_kept;
+        let near = far.near_cells(core);
+        let key = |x: f64, y: f64| (cell_of(x, 0.5), cell_of(y, 0.5));
+        // Expected: core, kept-zone buffer points, and per far cell its representative.
+        let mut expected: Vec<u64> = Vec::new();
+        let mut cells: FastMap<(i64, i64), Vec<(f64, u64)>> = FastMap::default();
+        for &(x, y, z, pid, part) in &points {
+            if part == Part::Core || in_cells(near, key(x, y)) {
+                expected.push(pid);
+                assert!(part == Part::Core || counted.contains(x, y));
+            } else {
+                cells.entry(key(x, y)).or_default().push((z, pid));
+            }
+        }
+        for pts in cells.values_mut() {
+            pts.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            let j = cell_representative(pts.len(), pts.len(), |j| pts[j].0, 0.15).unwrap();
+            expected.push(pts[j].1);
+        }
+        expected.sort_unstable();
+        let n_core = job.n_core as usize;
+        let (tile, thinned) = load_tile(job, &layout, TileBuffers::default(), Some(far)).unwrap();
+        assert_eq!(tile.n_core, n_core);
+        assert!(tile.ids[..n_core]
+            .iter()
+            .all(|&id| points[id as usize].4 == Part::Core));
+        let mut got = tile.ids.clone();
+        got.sort_unstable();
+        assert_eq!(got, expected);
+        assert_eq!(thinned as usize, points.len() - got.len());
+        assert!(thinned > 20_000, "{thinned}");
+        assert!(got.len() as u64 <= bound, "{} > {bound}", got.len());
+        // In the order of the unthinned tile, records and positions with them.
+        let (full_job, _) = random_job(dir.path(), &layout, 60_000);
+        let (full, _) = load_tile(full_job, &layout, TileBuffers::default(), None).unwrap();
+        let keep: FastSet<u64> = tile.ids.iter().copied().collect();
+        let rl = layout.record_len;
+        let same: Vec<usize> = (0..full.ids.len())
+            .filter(|&i| keep.contains(&full.ids[i]))
+            .collect();
+        assert_eq!(same.len(), tile.ids.len());
+        for (t, &i) in same.iter().enumerate() {
+            assert_eq!(tile.ids[t], full.ids[i]);
+            assert_eq!(tile.xyz[t], full.xyz[i]);
+            assert_eq!(
+                tile.records[t * rl..(t + 1) * rl],
+                full.records[i * rl..(i + 1) * rl]
+            );
+        }
+        // Without thinning (or a job a split has thinned) every point loads.
+        let (mut job, _) = random_job(dir.path(), &layout, 60_000);
+        job.far_thinned = true;
+        let (tile, thinned) = load_tile(job, &layout, TileBuffers::default(), Some(far)).unwrap();
+        assert_eq!((tile.ids.len(), thinned), (60_000, 0));
+    }
+
+    /// A split of a tile with a random cloud: every child's near zone (core + 5 m) holds all
+    /// its points and is counted exactly in `n_near`; beyond it at most one point per far
+    /// cell remains; every parent core point lands in exactly one child core.
+    #[test]
+    fn split_counts_near_points_and_thins_only_far_cells() {
+        let dir = tempfile::tempdir().unwrap();
+        let layout = test_layout();
+        let (job, points) = random_job(dir.path(), &layout, 60_000);
+        let far = test_far();
         let params = SplitParams {
             min_tile_size_m: 1.0,
             buffer_bytes: 1 << 20,
@@ -664,11 +922,31 @@ mod tests {
             let outer = child.core.expanded(20.0);
             let expect_near = points
                 .iter()
-                .filter(|&&(x, y, _)| near.contains(x, y) && !child.core.contains(x, y))
+                .filter(|&&(x, y, ..)| near.contains(x, y) && !child.core.contains(x, y))
                 .count() as u64;
             assert_eq!(child.n_near, expect_near, "{}", child.name);
+            let [cx0, cy0, cx1, cy1] = far.near_cells(child.core);
+            let expect_kept = points
+                .iter()
+                .filter(|&&(x, y, ..)| {
+                    let (cx, cy) = (cell_of(x, 0.5), cell_of(y, 0.5));
+                    outer.contains(x, y)
+                        && !child.core.contains(x, y)
+                        && (cx0..=cx1).contains(&cx)
+                        && (cy0..=cy1).contains(&cy)
+                })
+                .count() as u64;
+            assert_eq!(child.n_kept, expect_kept, "{}", child.name);
             let core = child.core;
-            let tile = load_tile(child, &layout, TileBuffers::default()).unwrap();
+            let bound = child.n_core + child.n_kept + far.far_cells(core, 20.0);
+            let (tile, again) =
+                load_tile(child, &layout, TileBuffers::default(), Some(far)).unwrap();
+            assert_eq!(again, 0, "a split child is thinned once");
+            assert!(
+                tile.ids.len() as u64 <= bound,
+                "{} > {bound}",
+                tile.ids.len()
+            );
             cores += tile.n_core;
             assert!(tile.xyz[..tile.n_core]
                 .iter()

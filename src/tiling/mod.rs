@@ -40,6 +40,8 @@ pub struct Tiler<'a> {
     releases: Vec<CellRelease>,
     /// Buffer points within this distance of a tile's core are counted ([`TileJob::n_near`]).
     near_m: f64,
+    /// ... and within this one ([`TileJob::n_kept`]; 0: not counted).
+    kept_m: f64,
     /// A task of a distributed run bins only its own cells ([`Tiler::restrict`]).
     scope: Option<&'a std::collections::HashSet<crate::model::CellKey>>,
     /// Core points binned into cells in scope.
@@ -61,10 +63,11 @@ impl<'a> Tiler<'a> {
         files: &'a [InputFile],
         spill_dir: &Path,
         spill_bytes: usize,
-        near_m: f64,
+        (near_m, kept_m): (f64, f64),
     ) -> Self {
         Tiler {
             near_m,
+            kept_m,
             grid,
             layout,
             files,
@@ -130,17 +133,17 @@ impl<'a> Tiler<'a> {
                 let r = grid.cell_rect(ix, iy);
                 if x < r.x0 + b || x >= r.x1 - b || y < r.y0 + b || y >= r.y1 - b {
                     let mut err = Ok(());
-                    let near_m = self.near_m;
+                    let (near_m, kept_m) = (self.near_m, self.kept_m);
                     grid.assign(x, y, |tile, is_core| {
                         if !is_core && err.is_ok() && in_scope((tile.ix, tile.iy)) {
                             let s = self.open_slot(tile);
                             err = self.spill.push(s, Part::Buffer, pid, rec);
-                            if grid
-                                .cell_rect(tile.ix, tile.iy)
-                                .expanded(near_m)
-                                .contains(x, y)
-                            {
+                            let r = grid.cell_rect(tile.ix, tile.iy);
+                            if r.expanded(near_m).contains(x, y) {
                                 self.spill.count_near(s);
+                            }
+                            if kept_m > 0.0 && r.expanded(kept_m).contains(x, y) {
+                                self.spill.count_kept(s);
                             }
                         }
                     });
@@ -250,6 +253,8 @@ impl<'a> Tiler<'a> {
                 n_core,
                 n_buf,
                 n_near: done.near,
+                n_kept: done.kept,
+                far_thinned: false,
             };
             self.releases.push(CellRelease {
                 cell: (id.ix, id.iy),

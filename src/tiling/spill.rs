@@ -108,6 +108,8 @@ struct Slot {
     held: (u64, u64),
     /// Buffer points counted as near the core ([`SpillSet::count_near`]).
     near: u64,
+    /// Buffer points counted in the zone far thinning keeps whole ([`SpillSet::count_kept`]).
+    kept: u64,
 }
 
 /// A set of append-only spill files with one shared bound on buffered bytes. When the bound is
@@ -258,6 +260,7 @@ impl SpillSet {
                 core: SpillPart::empty(spill_path(&self.dir, id, Part::Core)),
                 buf: SpillPart::empty(spill_path(&self.dir, id, Part::Buffer)),
                 near: 0,
+                kept: 0,
             });
         };
         let held = self.slots[slot].core.len + self.slots[slot].buf.len;
@@ -285,6 +288,7 @@ impl SpillSet {
             core: part(Part::Core, s.flushed.0, s.held.0, s.core),
             buf: part(Part::Buffer, s.flushed.1, s.held.1, s.buf),
             near: s.near,
+            kept: s.kept,
         })
     }
 
@@ -293,6 +297,13 @@ impl SpillSet {
     #[inline]
     pub fn count_near(&mut self, slot: usize) {
         self.slots[slot].near += 1;
+    }
+
+    /// Counts one buffer point of a slot as lying within the zone the far-buffer thinning
+    /// keeps whole (`tiling::FarThin::count_m`), for the memory plan.
+    #[inline]
+    pub fn count_kept(&mut self, slot: usize) {
+        self.slots[slot].kept += 1;
     }
 }
 
@@ -305,6 +316,8 @@ pub struct FinishedTile {
     pub buf: SpillPart,
     /// Buffer points counted near the core ([`SpillSet::count_near`]).
     pub near: u64,
+    /// Buffer points counted in the zone kept whole ([`SpillSet::count_kept`]).
+    pub kept: u64,
 }
 
 /// Records handed over in memory (spill record format), charged to their spill set's bound
