@@ -78,37 +78,40 @@ pub(super) fn refine(
     // `join_touching`).
     let first_piece = next;
     if p.dominant_fraction > 0.0 {
-        for piece in split_off_planes(xyz, labels, segments, &grid, p) {
-            if piece.len() >= MIN_PIECE_POINTS {
-                next += 1;
-                out.split_off += 1;
-            }
-            let l = if piece.len() >= MIN_PIECE_POINTS {
-                next
-            } else {
-                0
-            };
-            for i in piece {
-                labels[i as usize] = l;
-            }
-        }
+        let pieces = split_off_planes(xyz, labels, segments, &grid, p);
+        out.split_off = label_pieces(pieces, labels, &mut next);
     }
     let left: Vec<u32> = (0..labels.len() as u32)
         .filter(|&i| wanted[i as usize] && labels[i as usize] == 0)
         .collect();
     let (attached, rest) = attach_to_planes(xyz, labels, next, &left, lab, &grid, p);
     out.attached = attached;
-    for piece in grid.components(xyz, &rest) {
-        if piece.len() >= MIN_PIECE_POINTS {
-            next += 1;
-            out.leftover_segments += 1;
-            for i in piece {
-                labels[i as usize] = next;
-            }
-        }
-    }
+    out.leftover_segments = label_pieces(grid.components(xyz, &rest), labels, &mut next);
     out.segments = join_touching(xyz, labels, lab, next, first_piece, &grid, p);
     out
+}
+
+/// Gives each piece of at least [`MIN_PIECE_POINTS`] points the next label (after `next`),
+/// the points of smaller ones label 0; returns how many pieces were labelled.
+fn label_pieces(
+    pieces: impl IntoIterator<Item = Vec<u32>>,
+    labels: &mut [u32],
+    next: &mut u32,
+) -> usize {
+    let mut labelled = 0;
+    for piece in pieces {
+        let l = if piece.len() >= MIN_PIECE_POINTS {
+            *next += 1;
+            labelled += 1;
+            *next
+        } else {
+            0
+        };
+        for i in piece {
+            labels[i as usize] = l;
+        }
+    }
+    labelled
 }
 
 /// A voxel grid of one edge over a tile.
@@ -366,20 +369,10 @@ impl SegmentShape {
         p: &RefineParams,
     ) -> Self {
         let tol = p.plane_tolerance_m;
-        let mut moments = Moments::new(origin);
-        let mut c = [0.0f64; 3];
-        for &i in idx {
-            moments.add(&xyz[i as usize]);
-            if let Some(lab) = lab {
-                for k in 0..3 {
-                    c[k] += lab[i as usize][k] as f64;
-                }
-            }
-        }
+        let (moments, colour) = sums(xyz, idx, lab, origin);
         let wide = flat_and_wide(&moments, tol).is_some();
         let plane = flat_and(&moments, tol, 2.0 * tol)
             .or_else(|| dominant_plane(xyz, idx, origin, tol, p.dominant_fraction));
-        let colour = lab.map(|_| c.map(|v| v / moments.n.max(1) as f64));
         SegmentShape {
             moments,
             plane,
@@ -395,6 +388,28 @@ impl SegmentShape {
             _ => 0.0,
         }
     }
+}
+
+/// The moments of the points `idx` (about `origin`) and their mean CIELab colour (None
+/// without colour): what the ties' surfaces and the refinement's shapes are judged by.
+pub(super) fn sums<'a>(
+    xyz: &[[f64; 3]],
+    idx: impl IntoIterator<Item = &'a u32>,
+    lab: Option<&[[f32; 3]]>,
+    origin: [f64; 3],
+) -> (Moments, Option<[f64; 3]>) {
+    let mut m = Moments::new(origin);
+    let mut c = [0.0f64; 3];
+    for &i in idx {
+        m.add(&xyz[i as usize]);
+        if let Some(lab) = lab {
+            for k in 0..3 {
+                c[k] += lab[i as usize][k] as f64;
+            }
+        }
+    }
+    let colour = lab.map(|_| c.map(|v| v / m.n.max(1) as f64));
+    (m, colour)
 }
 
 /// The least-squares plane of `m` when its points are planar: flat (RMS residual λ0 ≤ `tol`)

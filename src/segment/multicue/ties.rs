@@ -22,7 +22,7 @@
 //! tile stitching then joins world segments across tile borders as for region growing.
 
 use super::meanshift::UnionFind;
-use super::refine::{dominant_plane, flat_and_wide, refine, Members, RefineParams, Refined};
+use super::refine::{dominant_plane, flat_and_wide, refine, sums, Members, RefineParams, Refined};
 use crate::segment::features::{Moments, Plane};
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
@@ -339,21 +339,7 @@ impl Surfaces {
         out.nodes = (0..nodes)
             .map(|nd| {
                 let idx = members.of(nd);
-                let moments = |idx: &mut dyn Iterator<Item = &u32>| {
-                    let mut m = Moments::new(origin);
-                    let mut c = [0.0f64; 3];
-                    for &i in idx {
-                        m.add(&xyz[i as usize]);
-                        if let Some(lab) = lab {
-                            for k in 0..3 {
-                                c[k] += lab[i as usize][k] as f64;
-                            }
-                        }
-                    }
-                    let colour = lab.map(|_| c.map(|v| v / m.n.max(1) as f64));
-                    (m, colour)
-                };
-                let (all, colour) = moments(&mut idx.iter());
+                let (all, colour) = sums(xyz, idx, lab, origin);
                 if let Some(plane) = flat_and_wide(&all, tol) {
                     return NodeSurface {
                         points: idx.len(),
@@ -364,9 +350,8 @@ impl Surfaces {
                 }
                 match dominant_plane(xyz, idx, origin, tol, p.dominant_fraction) {
                     Some(plane) => {
-                        let (on, colour) = moments(
-                            &mut idx.iter().filter(|&&i| plane.dist(&xyz[i as usize]) <= tol),
-                        );
+                        let on_plane = idx.iter().filter(|&&i| plane.dist(&xyz[i as usize]) <= tol);
+                        let (on, colour) = sums(xyz, on_plane, lab, origin);
                         NodeSurface {
                             points: idx.len(),
                             plane: Some(plane),
