@@ -169,11 +169,10 @@ impl BudgetPlan {
             .fold(0.0, f64::max)
     }
 
-    /// Whether a tile of `n_core` + `n_buf` points, `n_near` of the buffer points within the
-    /// counted distance of the core (at least [`BudgetPlan::near_m`]; with far thinning, the
-    /// zone kept whole), fits its share of the budget. Stages that work
-    /// only within their context of the core are charged their context bytes for the core and
-    /// near points (counted while binning, so exact whatever the point layout: an estimate from
+    /// Whether a tile of `n_core` + `n_buf` points, `n_near` of the buffer points within
+    /// [`BudgetPlan::near_m`] of the core, fits its share of the budget. Stages that work only
+    /// within their context of the core are charged their context bytes for the core and near
+    /// points (counted while binning, so exact whatever the point layout: an estimate from
     /// the context's share of the buffer width undercharged split tiles threefold, whose
     /// thinned buffers are mostly near points) and their tile bytes for every point; 25 %
     /// slack on both. `far`: the tile's far buffer is thinned while it loads.
@@ -183,8 +182,8 @@ impl BudgetPlan {
 
     /// Bytes a tile of `n_core` + `n_buf` points (`n_near` of them near) takes while processed,
     /// as [`BudgetPlan::fits`] charges it. With `far`, the tile holds its core points, the
-    /// `far.kept` buffer points of the zone kept whole and at most `far.cells` far ones, and while it loads the thinning holds up to
-    /// `far.held` far points (record and key each, charged like a tile point) and a map entry
+    /// `far.kept` buffer points of the zone kept whole and at most `far.cells` far ones, and
+    /// while it loads the thinning holds up to `far.held` far points (record and key each, charged like a tile point) and a map entry
     /// per cell; that transient is charged in place of the stages' bytes, which come later.
     pub fn tile_bytes_needed(
         &self,

@@ -288,10 +288,10 @@ fn stitch_plan(cfg: &Config, segmenter: &dyn Stage, set: &InputSet) -> StitchPla
     }
 }
 
-/// Far-buffer thinning of tiles (as they load and when split): allowed when every stage that reads the whole buffer
-/// names its far cells ([`Stage::far_cells`]) and they agree; points within the widest bounded
-/// context of the other stages, and at least within `tiling.split_dense_buffer_m`, are all
-/// kept.
+/// Far-buffer thinning of tiles (as they load and when split): allowed when every stage that
+/// reads the whole buffer names its far cells ([`Stage::far_cells`]) and they agree; points
+/// within the widest bounded context of the other stages, and at least within
+/// `tiling.dense_buffer_m`, are all kept.
 fn far_thin(cfg: &Config, stages: &[Box<dyn Stage>]) -> Option<FarThin> {
     if !cfg.tiling.thin_far_buffers {
         return None;

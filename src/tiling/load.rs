@@ -474,10 +474,12 @@ pub struct FarCells {
 /// a split hands points to its children ([`split_job`]).
 ///
 /// Why, for every tile: the ground filter needs the whole buffer width, the other stages only
-/// their context of the core; a 50 m tile with a 20 m buffer on a street otherwise carried
-/// and ground-filtered 3.3 tile points per input point (the demo), 2.0 thinned, with the same
-/// output bit for bit. Why, for splits: a quadtree child keeps the parent's buffer width (the ground filter needs a whole seed
-/// cell of context), so a deep split of a dense tile would otherwise copy and load the full
+/// their context of the core; 50 m tiles with a 20 m buffer on a street otherwise carried and
+/// ground-filtered 3.3 tile points per input point (the demo), 2.0 thinned, with the same
+/// output bit for bit (demo, simulated drive; on ISPRS FSite5 2 points of 1 of 218 tiles
+/// changed: the filter's tile extent and border levels still read every point). Why, for
+/// splits: a quadtree child keeps the parent's buffer width (the ground filter needs a whole
+/// seed cell of context), so a deep split of a dense tile would otherwise copy and load the full
 /// buffer for every small child: at four levels a 3 m core carried a 43 m square of buffer
 /// (~200× its own points) and the split never converged on a simulated drive. Stages other
 /// than the ground filter work within their context of the core and keep every point there;
