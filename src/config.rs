@@ -591,6 +591,17 @@ mod tests {
         let c = Config::load(None, &["segment.buffer_m=3".into()]).unwrap();
         let s: SegmentSection = c.stage_section("segment").unwrap();
         assert_eq!(s.context_m, 3.0);
+        let t = Config::load(
+            None,
+            &[
+                "tiling.thin_split_buffers=false".into(),
+                "tiling.split_dense_buffer_m=2".into(),
+            ],
+        )
+        .unwrap()
+        .tiling;
+        assert!(!t.thin_far_buffers);
+        assert_eq!(t.dense_buffer_m, 2.0);
         let dir = std::env::temp_dir().join(format!("tessera-ren-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let file = dir.join("old.toml");
