@@ -157,6 +157,16 @@ impl Moments {
         Some((centroid, vals, vecs))
     }
 
+    /// Variance of the points along coordinate axis `a` (0 x, 1 y, 2 z); None without points.
+    pub fn variance(&self, a: usize) -> Option<f64> {
+        if self.n == 0 {
+            return None;
+        }
+        let inv = 1.0 / self.n as f64;
+        let k = [0, 3, 5][a];
+        Some((self.ss[k] * inv - (self.s[a] * inv).powi(2)).max(0.0))
+    }
+
     /// Mean squared distance of the points to `plane`; None without points.
     pub fn mean_sq_distance(&self, plane: &Plane) -> Option<f64> {
         if self.n == 0 {

@@ -291,6 +291,7 @@ impl SegmentStage {
                 "ties": st.ties,
                 "unconfirmed": st.unconfirmed,
                 "split_off": st.split_off,
+                "stems": st.stems,
                 "attached_points": st.attached,
                 "leftover_segments": st.leftover_segments,
             }),

@@ -41,6 +41,10 @@ pub(super) struct RefineParams {
     pub dominant_fraction: f64,
     /// Colour tolerance of coplanar joins, ΔE*ab (0: none).
     pub colour_tolerance: f64,
+    /// Horizontal radius of a stem about its axis, metres (0: no stems split off).
+    pub stem_radius_m: f64,
+    /// Least height of a stem, and how far the rest of its segment must rise above it, metres.
+    pub stem_min_height_m: f64,
 }
 
 /// What [`refine`] did.
@@ -50,6 +54,8 @@ pub(super) struct Refined {
     pub segments: u32,
     /// Pieces split off dominant planes.
     pub split_off: usize,
+    /// Stems split off the objects they carry.
+    pub stems: usize,
     /// Unsegmented points attached to a plane.
     pub attached: usize,
     /// Pieces formed by the points left over.
@@ -77,9 +83,10 @@ pub(super) fn refine(
     // Pieces are labelled above this; their colour is not their own evidence (see
     // `join_touching`).
     let first_piece = next;
-    if p.dominant_fraction > 0.0 {
-        let pieces = split_off_planes(xyz, labels, segments, &grid, p);
+    if p.dominant_fraction > 0.0 || p.stem_radius_m > 0.0 {
+        let (pieces, stems) = split_segments(xyz, labels, segments, &grid, p);
         out.split_off = label_pieces(pieces, labels, &mut next);
+        out.stems = label_pieces(stems, labels, &mut next);
     }
     let left: Vec<u32> = (0..labels.len() as u32)
         .filter(|&i| wanted[i as usize] && labels[i as usize] == 0)
@@ -185,30 +192,91 @@ fn label_nodes(labels: &[u32]) -> Vec<u32> {
 }
 
 /// Step 1: for every segment with a dominant plane, the pieces its points off that plane form
-/// (voxel connectivity). The caller labels them.
-fn split_off_planes(
+/// (voxel connectivity); for every other segment standing on a stem ([`stem_of`]), the stem.
+/// The caller labels them.
+fn split_segments(
     xyz: &[[f64; 3]],
     labels: &[u32],
     segments: u32,
     grid: &Grid,
     p: &RefineParams,
-) -> Vec<Vec<u32>> {
+) -> (Vec<Vec<u32>>, Vec<Vec<u32>>) {
     let tol = p.plane_tolerance_m;
     let members = Members::new(&label_nodes(labels), segments as usize);
     let mut pieces = Vec::new();
+    let mut stems = Vec::new();
     for seg in 0..segments as usize {
         let idx = members.of(seg);
-        let Some(plane) = dominant_plane(xyz, idx, grid.origin, tol, p.dominant_fraction) else {
-            continue;
-        };
-        let off: Vec<u32> = idx
-            .iter()
-            .copied()
-            .filter(|&i| plane.dist(&xyz[i as usize]) > tol)
-            .collect();
-        pieces.extend(grid.components(xyz, &off));
+        match dominant_plane(xyz, idx, grid.origin, tol, p.dominant_fraction) {
+            Some(plane) => {
+                let off: Vec<u32> = idx
+                    .iter()
+                    .copied()
+                    .filter(|&i| plane.dist(&xyz[i as usize]) > tol)
+                    .collect();
+                pieces.extend(grid.components(xyz, &off));
+            }
+            None => stems.extend(stem_of(xyz, idx, p, 1.0 / grid.inv)),
+        }
     }
-    pieces
+    (pieces, stems)
+}
+
+/// The stem a segment stands on, when it carries something wider that rises above it: a tree's
+/// trunk under its crown (a scan's range and colour cues join them where the trunk enters the
+/// crown, and every scan's segment ties them again). The stem's axis is vertical through the
+/// mean of the segment's lowest `stem_min_height_m / 2`, where at least 90 % of the points
+/// lie within `stem_radius_m` of it; the stem is the points within that radius, upwards from
+/// the lowest without a vertical gap over `gap` (one voxel), at least `stem_min_height_m`
+/// tall. The rest must hold [`MIN_PIECE_POINTS`] and reach `stem_min_height_m` above the
+/// stem's top: a pole's arm or a sign at its top stays with the pole, a pole or a person
+/// (all stem) stays whole, and a car or a bush has no narrow base.
+fn stem_of(xyz: &[[f64; 3]], idx: &[u32], p: &RefineParams, gap: f64) -> Option<Vec<u32>> {
+    let (r, h) = (p.stem_radius_m, p.stem_min_height_m);
+    if r <= 0.0 || idx.len() < 2 * MIN_PIECE_POINTS {
+        return None;
+    }
+    let z = |i: u32| xyz[i as usize][2];
+    let z_min = idx.iter().map(|&i| z(i)).fold(f64::INFINITY, f64::min);
+    let base: Vec<u32> = idx
+        .iter()
+        .copied()
+        .filter(|&i| z(i) <= z_min + 0.5 * h)
+        .collect();
+    let mut axis = [0.0; 2];
+    for &i in &base {
+        axis[0] += xyz[i as usize][0] / base.len() as f64;
+        axis[1] += xyz[i as usize][1] / base.len() as f64;
+    }
+    let near = |i: u32| {
+        let q = xyz[i as usize];
+        (q[0] - axis[0]).powi(2) + (q[1] - axis[1]).powi(2) <= r * r
+    };
+    if 10 * base.iter().filter(|&&i| !near(i)).count() > base.len() {
+        return None;
+    }
+    let mut column: Vec<(f64, u32)> = idx
+        .iter()
+        .filter(|&&i| near(i))
+        .map(|&i| (z(i), i))
+        .collect();
+    column.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    let mut top = z_min;
+    let mut stem: Vec<u32> = Vec::new();
+    for &(zi, i) in &column {
+        if zi - top > gap {
+            break;
+        }
+        top = top.max(zi);
+        stem.push(i);
+    }
+    // The segment's top is the rest's unless the stem reaches it (then nothing rises above).
+    let seg_top = idx.iter().map(|&i| z(i)).fold(f64::NEG_INFINITY, f64::max);
+    if top - z_min < h || idx.len() - stem.len() < MIN_PIECE_POINTS || seg_top < top + h {
+        return None;
+    }
+    stem.sort_unstable();
+    Some(stem)
 }
 
 /// Step 2: each point of `left` takes the segment (with a plane, [`SegmentShape`]) in its own
@@ -327,13 +395,22 @@ fn join_touching(
                     && (piece || s.colour_distance(t) <= colour_tol)
             })
         });
+        // A stem is enclosed only by a stem: a trunk's piece joins the trunk, the trunk does
+        // not join the crown it touches with half its voxels.
         let enclosed_by = || {
             if s.wide {
                 return None;
             }
             order.iter().find(|&&(o, k)| {
                 let t = shape(o);
-                t.plane.is_none() && t.moments.n > s.moments.n && 2 * k > cells.len()
+                // (A trunk seen from one side may pass for flat: its half-cylinder is within
+                // the plane tolerance; it is still the stem its pieces belong to.)
+                let encloses = if s.upright {
+                    t.upright
+                } else {
+                    t.plane.is_none()
+                };
+                encloses && t.moments.n > s.moments.n && 2 * k > cells.len()
             })
         };
         if let Some(&(o, _)) = on_plane.or_else(enclosed_by) {
@@ -357,6 +434,8 @@ struct SegmentShape {
     plane: Option<Plane>,
     /// A wide plane (the ties' planar test: façades, not windows or car parts).
     wide: bool,
+    /// An upright stem ([`upright`]: a trunk, a pole).
+    upright: bool,
     colour: Option<[f64; 3]>,
 }
 
@@ -374,6 +453,7 @@ impl SegmentShape {
         let plane = flat_and(&moments, tol, 2.0 * tol)
             .or_else(|| dominant_plane(xyz, idx, origin, tol, p.dominant_fraction));
         SegmentShape {
+            upright: upright(xyz, idx, origin, p),
             moments,
             plane,
             wide,
@@ -388,6 +468,45 @@ impl SegmentShape {
             _ => 0.0,
         }
     }
+}
+
+/// Whether the points `idx` form an upright stem: at least 90 % of them within
+/// `stem_radius_m` of the vertical through their median x and y, and those round — off their
+/// best plane by more than half `plane_tolerance_m` (RMS; a window's glass or a door is as
+/// narrow but flat, while a trunk's or pole's visible half-cylinder of radius 0.1–0.15 m
+/// leaves 3–5 cm) — and at least `stem_min_height_m` tall (the height of points spread evenly
+/// along it, √12 standard deviations). A trunk under its crown touches the crown with about
+/// half its voxels, as a car's glass touches the car's body; the trunk is an object of its
+/// own, enclosed only by another stem (its own larger piece). Judged on the points near the
+/// axis, so a stray return metres away does not decide it.
+fn upright(xyz: &[[f64; 3]], idx: &[u32], origin: [f64; 3], p: &RefineParams) -> bool {
+    let r = p.stem_radius_m;
+    if r <= 0.0 || idx.len() < 3 {
+        return false;
+    }
+    let median = |k: usize| {
+        let mut v: Vec<f64> = idx.iter().map(|&i| xyz[i as usize][k]).collect();
+        let mid = v.len() / 2;
+        *v.select_nth_unstable_by(mid, f64::total_cmp).1
+    };
+    let axis = [median(0), median(1)];
+    let mut near = Moments::new(origin);
+    for &i in idx {
+        let q = &xyz[i as usize];
+        if (q[0] - axis[0]).powi(2) + (q[1] - axis[1]).powi(2) <= r * r {
+            near.add(q);
+        }
+    }
+    if 10 * near.n < 9 * idx.len() {
+        return false;
+    }
+    let round = near
+        .eigen()
+        .is_some_and(|(_, l, _)| l[0].sqrt() > 0.5 * p.plane_tolerance_m);
+    round
+        && near
+            .variance(2)
+            .is_some_and(|v| (12.0 * v).sqrt() >= p.stem_min_height_m)
 }
 
 /// The moments of the points `idx` (about `origin`) and their mean CIELab colour (None
@@ -605,6 +724,8 @@ mod tests {
                     plane_tolerance_m: 0.05,
                     dominant_fraction: 0.6,
                     colour_tolerance: 10.0,
+                    stem_radius_m: 0.3,
+                    stem_min_height_m: 1.0,
                 },
             )
         }
@@ -682,13 +803,134 @@ mod tests {
             GLASS,
         );
         let other = s.add(boxed([4.3, 0.0, 0.0], [7.3, 1.8, 1.4], 0.05), 3, GLASS);
+        // A side window 0.5 m wide and 1.2 m tall: as narrow and tall as a stem, but flat.
+        let side = s.add(wall((2.0, 2.5), (0.1, 1.3), -0.02, 0.05), 4, GLASS);
         s.refine();
         assert_eq!(
             s.one(&glass),
             s.one(&body),
             "the glass stayed apart from its car"
         );
+        assert_eq!(s.one(&side), s.one(&body), "the side window stayed apart");
         assert_ne!(s.one(&other), s.one(&body), "two cars joined");
+    }
+
+    /// Points on a vertical cylinder about (`cx`, `cy`) of radius `r` from `z0` to `z1`, at
+    /// azimuths `a0..a1` (radians), about every `step`.
+    fn cylinder(c: [f64; 2], r: f64, z: (f64, f64), a: (f64, f64), step: f64) -> Vec<[f64; 3]> {
+        let na = ((a.1 - a.0) * r / step).ceil() as usize;
+        let nz = ((z.1 - z.0) / step) as usize;
+        let mut v = Vec::new();
+        for i in 0..na {
+            let t = a.0 + (i as f64 + 0.5) * (a.1 - a.0) / na as f64;
+            for k in 0..nz {
+                let zk = z.0 + (k as f64 + 0.5) * step;
+                v.push([c[0] + r * t.cos(), c[1] + r * t.sin(), zk]);
+            }
+        }
+        v
+    }
+
+    /// Points on the surface of an ellipsoid of half-axes `a` (horizontal) and `b` (vertical)
+    /// about `c`, about every `step`.
+    fn ellipsoid(c: [f64; 3], a: f64, b: f64, step: f64) -> Vec<[f64; 3]> {
+        let mut v = Vec::new();
+        let nl = (std::f64::consts::PI * b / step) as usize;
+        for i in 0..nl {
+            let phi = std::f64::consts::PI * (i as f64 + 0.5) / nl as f64;
+            let ring = a * phi.sin();
+            let n = ((std::f64::consts::TAU * ring / step).ceil() as usize).max(1);
+            for j in 0..n {
+                let t = std::f64::consts::TAU * j as f64 / n as f64;
+                v.push([
+                    c[0] + ring * t.cos(),
+                    c[1] + ring * t.sin(),
+                    c[2] - b * phi.cos(),
+                ]);
+            }
+        }
+        v
+    }
+
+    const BARK: [f32; 3] = [35.0, 8.0, 15.0];
+    const LEAVES: [f32; 3] = [45.0, -30.0, 35.0];
+
+    /// A tree whose trunk the scans saw from one side (the road's: a half-cylinder, which
+    /// passes for flat within 5 cm) and from `foot` up, under a crown reaching down to 1.8 m.
+    fn tree(s: &mut Scene, foot: f64, trunk: u32, crown: u32) -> [std::ops::Range<usize>; 3] {
+        let side = (0.0, std::f64::consts::PI);
+        let low = s.add(
+            cylinder([0.0, 0.0], 0.15, (foot, 1.8), side, 0.05),
+            trunk,
+            BARK,
+        );
+        // The trunk's top, inside the crown's lowest part.
+        let top = s.add(
+            cylinder([0.0, 0.0], 0.15, (1.8, 2.5), side, 0.05),
+            trunk,
+            BARK,
+        );
+        let c = ellipsoid([0.0, 0.0, 3.8], 2.0, 2.0, 0.1);
+        let crown_pts = s.add(c, crown, LEAVES);
+        [low, top, crown_pts]
+    }
+
+    /// One world segment holding a trunk and its crown (a scan's cues joined them where the
+    /// trunk enters the crown): the stem is split off and stays apart.
+    #[test]
+    fn a_trunk_is_split_off_its_crown() {
+        let mut s = Scene::new();
+        let [low, top, crown] = tree(&mut s, 0.5, 1, 1);
+        let r = s.refine();
+        assert_eq!(r.stems, 1);
+        let trunk = s.one(&low);
+        assert_eq!(s.one(&top), trunk, "the trunk's top went with the crown");
+        // The crown's points off the stem's axis keep one label; the few at its bottom within
+        // the stem's radius (about the axis of its visible side) go with the stem.
+        let crown_labels: Vec<u32> = s.labels[crown.clone()]
+            .iter()
+            .zip(&s.xyz[crown])
+            .filter(|(_, q)| q[0].hypot(q[1]) > 0.45)
+            .map(|(&l, _)| l)
+            .collect();
+        assert!(crown_labels.iter().all(|&l| l == crown_labels[0]));
+        assert!(crown_labels[0] != 0 && crown_labels[0] != trunk);
+    }
+
+    /// A trunk and its crown as two segments, the trunk seen from 1.4 m up (parked cars hid
+    /// its foot): it touches the crown with most of its voxels, as a car's glass touches the
+    /// car, but a stem is not enclosed by a crown.
+    #[test]
+    fn a_trunk_is_not_enclosed_by_its_crown() {
+        let mut s = Scene::new();
+        let [low, top, crown] = tree(&mut s, 1.4, 1, 2);
+        let r = s.refine();
+        assert_eq!(r.stems, 0);
+        let trunk = s.one(&low);
+        assert_eq!(s.one(&top), trunk);
+        assert_ne!(s.one(&crown), trunk, "the trunk joined its crown");
+    }
+
+    /// A pole with an arm at its top stays one segment: nothing rises above its stem.
+    #[test]
+    fn a_pole_keeps_its_arm() {
+        let mut s = Scene::new();
+        let tau = std::f64::consts::TAU;
+        let mut pts = cylinder([0.0, 0.0], 0.1, (0.0, 6.0), (0.0, tau), 0.05);
+        pts.extend((0..40).flat_map(|i| {
+            let x = 0.1 + i as f64 * 0.04;
+            [
+                [x, 0.0, 5.85],
+                [x, 0.0, 5.95],
+                [x, 0.05, 5.9],
+                [x, -0.05, 5.9],
+            ]
+        }));
+        let pole = s.add(pts, 1, BARK);
+        let r = s.refine();
+        assert_eq!(r.stems, 0);
+        assert_eq!(r.segments, 1);
+        assert_ne!(s.one(&pole), 0);
     }
 
     /// Two touching segments in one plane are one surface when their colours agree, two

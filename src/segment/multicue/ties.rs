@@ -70,6 +70,12 @@ pub struct TieParams {
     /// segments of their own, touching pieces of one surface or object joined), metres.
     /// 0: no refinement.
     pub refine_voxel_m: f64,
+    /// In the refinement, a segment standing on a narrow vertical stem (within this radius of
+    /// a vertical axis, metres) that carries something wider rising above it — a tree's trunk
+    /// under its crown — gives the stem a segment of its own. 0: no stems.
+    pub stem_radius_m: f64,
+    /// The least height of such a stem, and how far the rest must rise above its top, metres.
+    pub stem_min_height_m: f64,
 }
 
 /// Which segment's seen voxels the shared voxels are compared with.
@@ -98,6 +104,9 @@ impl Default for TieParams {
             confirm: true,
             dominant_fraction: 0.6,
             refine_voxel_m: 0.25,
+            // A trunk's or pole's radius with scatter (street trees 0.1–0.25 m).
+            stem_radius_m: 0.3,
+            stem_min_height_m: 1.0,
         }
     }
 }
@@ -135,6 +144,18 @@ impl TieParams {
                 self.refine_voxel_m
             ));
         }
+        if !(self.stem_radius_m.is_finite() && self.stem_radius_m >= 0.0) {
+            return Err(format!(
+                "segment.tie.stem_radius_m must be >= 0, got {}",
+                self.stem_radius_m
+            ));
+        }
+        if !(self.stem_min_height_m.is_finite() && self.stem_min_height_m > 0.0) {
+            return Err(format!(
+                "segment.tie.stem_min_height_m must be > 0, got {}",
+                self.stem_min_height_m
+            ));
+        }
         if self.min_shared_voxels == 0 {
             return Err("segment.tie.min_shared_voxels must be >= 1".into());
         }
@@ -163,6 +184,8 @@ pub struct TieStats {
     pub unconfirmed: usize,
     /// Refinement (`refine.rs`): pieces split off world segments' dominant planes …
     pub split_off: usize,
+    /// … stems split off the objects they carry (trunks under crowns) …
+    pub stems: usize,
     /// … unsegmented points that joined a segment's plane …
     pub attached: usize,
     /// … and segments formed by the points left over.
@@ -277,6 +300,8 @@ pub fn tie(
             plane_tolerance_m: p.plane_tolerance_m,
             dominant_fraction: p.dominant_fraction,
             colour_tolerance: p.colour_tolerance,
+            stem_radius_m: p.stem_radius_m,
+            stem_min_height_m: p.stem_min_height_m,
         };
         let r = refine(xyz, &mut labels, next, &wanted, lab, origin, &rp);
         next = r.segments;
@@ -291,6 +316,7 @@ pub fn tie(
         ties,
         unconfirmed,
         split_off: refined.split_off,
+        stems: refined.stems,
         attached: refined.attached,
         leftover_segments: refined.leftover_segments,
         world_segments: next as usize,
