@@ -72,7 +72,8 @@ pub struct TieParams {
     pub refine_voxel_m: f64,
     /// In the refinement, a segment standing on a narrow vertical stem (within this radius of
     /// a vertical axis, metres) that carries something wider rising above it — a tree's trunk
-    /// under its crown — gives the stem a segment of its own. 0: no stems.
+    /// under its crown — gives the stem a segment of its own, and an upright round segment
+    /// that narrow is enclosed only by another upright one (`refine.rs`). 0: no stems.
     pub stem_radius_m: f64,
     /// The least height of such a stem, and how far the rest must rise above its top, metres.
     pub stem_min_height_m: f64,
