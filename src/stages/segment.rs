@@ -290,6 +290,7 @@ impl SegmentStage {
                 "candidate_pairs": st.candidate_pairs,
                 "ties": st.ties,
                 "unconfirmed": st.unconfirmed,
+                "apart": st.apart,
                 "split_off": st.split_off,
                 "stems": st.stems,
                 "attached_points": st.attached,

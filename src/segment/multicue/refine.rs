@@ -8,7 +8,9 @@
 //! the ties, in each tile:
 //! 1. **split**: a world segment with a dominant plane ([`dominant_plane`]) keeps the points
 //!    within `plane_tolerance_m` of it; the others become pieces of their own by voxel
-//!    connectivity;
+//!    connectivity. A segment without one keeps its largest part connected through the
+//!    ties' voxels (its other parts become segments) and gives the stem that part stands on
+//!    ([`stem_of`]) a segment of its own;
 //! 2. **attach**: an unsegmented point takes the segment in its own or a neighbouring voxel
 //!    whose plane lies nearest to it, within the tolerance; the points still left become
 //!    pieces by voxel connectivity;
@@ -45,6 +47,9 @@ pub(super) struct RefineParams {
     pub stem_radius_m: f64,
     /// Least height of a stem, and how far the rest of its segment must rise above it, metres.
     pub stem_min_height_m: f64,
+    /// Segments without a dominant plane are split into their parts connected through
+    /// voxels of this edge, metres (0: no split).
+    pub apart_voxel_m: f64,
 }
 
 /// What [`refine`] did.
@@ -54,6 +59,8 @@ pub(super) struct Refined {
     pub segments: u32,
     /// Pieces split off dominant planes.
     pub split_off: usize,
+    /// Parts of segments without a dominant plane that lay apart from the rest.
+    pub apart: usize,
     /// Stems split off the objects they carry.
     pub stems: usize,
     /// Unsegmented points attached to a plane.
@@ -80,14 +87,18 @@ pub(super) fn refine(
     };
     let mut next = segments;
     let mut out = Refined::default();
+    let split = if p.dominant_fraction > 0.0 || p.stem_radius_m > 0.0 || p.apart_voxel_m > 0.0 {
+        split_segments(xyz, labels, segments, &grid, p)
+    } else {
+        Split::default()
+    };
+    // Parts that lay apart are segments in their own right (their colour is their own).
+    out.apart = label_pieces(split.apart, labels, &mut next);
     // Pieces are labelled above this; their colour is not their own evidence (see
     // `join_touching`).
     let first_piece = next;
-    if p.dominant_fraction > 0.0 || p.stem_radius_m > 0.0 {
-        let (pieces, stems) = split_segments(xyz, labels, segments, &grid, p);
-        out.split_off = label_pieces(pieces, labels, &mut next);
-        out.stems = label_pieces(stems, labels, &mut next);
-    }
+    out.split_off = label_pieces(split.pieces, labels, &mut next);
+    out.stems = label_pieces(split.stems, labels, &mut next);
     let left: Vec<u32> = (0..labels.len() as u32)
         .filter(|&i| wanted[i as usize] && labels[i as usize] == 0)
         .collect();
@@ -191,20 +202,30 @@ fn label_nodes(labels: &[u32]) -> Vec<u32> {
         .collect()
 }
 
+/// What step 1 takes out of the segments; the caller labels each group.
+#[derive(Default)]
+struct Split {
+    /// Parts of segments without a dominant plane that lie apart from the segment's largest.
+    apart: Vec<Vec<u32>>,
+    /// Points off a dominant plane, by voxel connectivity.
+    pieces: Vec<Vec<u32>>,
+    /// Stems ([`stem_of`]).
+    stems: Vec<Vec<u32>>,
+}
+
 /// Step 1: for every segment with a dominant plane, the pieces its points off that plane form
-/// (voxel connectivity); for every other segment standing on a stem ([`stem_of`]), the stem.
-/// The caller labels them.
+/// (voxel connectivity); every other segment keeps its largest part connected through voxels
+/// of `apart_voxel_m`, and gives the stem that part stands on ([`stem_of`]).
 fn split_segments(
     xyz: &[[f64; 3]],
     labels: &[u32],
     segments: u32,
     grid: &Grid,
     p: &RefineParams,
-) -> (Vec<Vec<u32>>, Vec<Vec<u32>>) {
+) -> Split {
     let tol = p.plane_tolerance_m;
     let members = Members::new(&label_nodes(labels), segments as usize);
-    let mut pieces = Vec::new();
-    let mut stems = Vec::new();
+    let mut out = Split::default();
     for seg in 0..segments as usize {
         let idx = members.of(seg);
         match dominant_plane(xyz, idx, grid.origin, tol, p.dominant_fraction) {
@@ -214,12 +235,42 @@ fn split_segments(
                     .copied()
                     .filter(|&i| plane.dist(&xyz[i as usize]) > tol)
                     .collect();
-                pieces.extend(grid.components(xyz, &off));
+                out.pieces.extend(grid.components(xyz, &off));
             }
-            None => stems.extend(stem_of(xyz, idx, p, 1.0 / grid.inv)),
+            None => {
+                // An object is one connected body. A scan's image joins returns that are no
+                // neighbours in space — across a ring step, where the angle test lets a range
+                // jump pass on a sparse sensor (16 rings: a car's roof and a window 3.8 m
+                // behind it, one grey in the colour cue), or through points that are no
+                // members here (a parked car, the kerb, the footpath and the façade) — and
+                // the ties carry such joins into the world segment: its parts then lie apart.
+                // The largest part keeps the segment, other parts of MIN_PIECE_POINTS or more
+                // become segments, smaller ones stay (a few stray returns). Parts connect
+                // through voxels of the ties' edge, the scale at which consecutive scans'
+                // samples of one surface meet: 0.25 m voxels broke windows seen by 16 rings.
+                let mut parts = if p.apart_voxel_m > 0.0 {
+                    let apart = Grid {
+                        origin: grid.origin,
+                        inv: 1.0 / p.apart_voxel_m,
+                    };
+                    apart.components(xyz, idx)
+                } else {
+                    vec![idx.to_vec()]
+                };
+                let main = (0..parts.len())
+                    .max_by_key(|&k| (parts[k].len(), std::cmp::Reverse(k)))
+                    .unwrap_or(0);
+                let body = std::mem::take(&mut parts[main]);
+                out.apart.extend(
+                    parts
+                        .into_iter()
+                        .filter(|part| part.len() >= MIN_PIECE_POINTS),
+                );
+                out.stems.extend(stem_of(xyz, &body, p, 1.0 / grid.inv));
+            }
         }
     }
-    (pieces, stems)
+    out
 }
 
 /// The stem a segment stands on, when it carries something wider that rises above it: a tree's
@@ -726,6 +777,7 @@ mod tests {
                     colour_tolerance: 10.0,
                     stem_radius_m: 0.3,
                     stem_min_height_m: 1.0,
+                    apart_voxel_m: 0.5,
                 },
             )
         }
@@ -813,6 +865,31 @@ mod tests {
         );
         assert_eq!(s.one(&side), s.one(&body), "the side window stayed apart");
         assert_ne!(s.one(&other), s.one(&body), "two cars joined");
+    }
+
+    /// A scan joined a parked car and the façade 5 m behind it (through the footpath, which
+    /// is ground and no member here) and the ties kept them one segment. The refinement
+    /// splits the façade's part off, and that part, in its own colour, does not join the
+    /// neighbouring façade of another colour in its plane.
+    #[test]
+    fn a_car_and_the_facade_behind_it_are_split_apart() {
+        let mut s = Scene::new();
+        let car = s.add(
+            boxed([0.0, 0.0, 0.0], [4.0, 1.8, 1.4], 0.05),
+            1,
+            [50.0, 0.0, 0.0],
+        );
+        let part = s.add(wall((0.0, 3.0), (0.0, 3.0), 6.8, 0.05), 1, WALL);
+        let next = s.add(wall((3.0, 8.0), (0.0, 3.0), 6.8, 0.05), 2, GLASS);
+        let r = s.refine();
+        assert_eq!(r.apart, 1);
+        assert_ne!(
+            s.one(&car),
+            s.one(&part),
+            "the car kept the façade behind it"
+        );
+        assert_ne!(s.one(&part), s.one(&next), "façades of two colours joined");
+        assert_ne!(s.one(&car), 0);
     }
 
     /// Points on a vertical cylinder about (`cx`, `cy`) of radius `r` from `z0` to `z1`, at

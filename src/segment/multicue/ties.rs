@@ -77,6 +77,10 @@ pub struct TieParams {
     pub stem_radius_m: f64,
     /// The least height of such a stem, and how far the rest must rise above its top, metres.
     pub stem_min_height_m: f64,
+    /// In the refinement, a segment without a dominant plane whose points lie apart (no
+    /// touching voxels of `voxel_m`) keeps its largest part; its other parts become segments
+    /// of their own (`refine.rs`).
+    pub split_apart: bool,
 }
 
 /// Which segment's seen voxels the shared voxels are compared with.
@@ -108,6 +112,7 @@ impl Default for TieParams {
             // A trunk's or pole's radius with scatter (street trees 0.1–0.25 m).
             stem_radius_m: 0.3,
             stem_min_height_m: 1.0,
+            split_apart: true,
         }
     }
 }
@@ -183,7 +188,10 @@ pub struct TieStats {
     pub ties: usize,
     /// World segments of one scan, where other scans looked, left unsegmented (`confirm`).
     pub unconfirmed: usize,
-    /// Refinement (`refine.rs`): pieces split off world segments' dominant planes …
+    /// Refinement (`refine.rs`): parts of world segments without a dominant plane that lay
+    /// apart from the rest (`split_apart`) …
+    pub apart: usize,
+    /// … pieces split off world segments' dominant planes …
     pub split_off: usize,
     /// … stems split off the objects they carry (trunks under crowns) …
     pub stems: usize,
@@ -303,6 +311,7 @@ pub fn tie(
             colour_tolerance: p.colour_tolerance,
             stem_radius_m: p.stem_radius_m,
             stem_min_height_m: p.stem_min_height_m,
+            apart_voxel_m: if p.split_apart { p.voxel_m } else { 0.0 },
         };
         let r = refine(xyz, &mut labels, next, &wanted, lab, origin, &rp);
         next = r.segments;
@@ -316,6 +325,7 @@ pub fn tie(
         candidate_pairs: pairs.len() + same.len(),
         ties,
         unconfirmed,
+        apart: refined.apart,
         split_off: refined.split_off,
         stems: refined.stems,
         attached: refined.attached,
