@@ -50,6 +50,8 @@ pub(super) struct RefineParams {
     /// Segments without a dominant plane are split into their parts connected through
     /// voxels of this edge, metres (0: no split).
     pub apart_voxel_m: f64,
+    /// A dominant plane's points in two colours ([`colour_split`]) are split by colour.
+    pub split_colours: bool,
 }
 
 /// What [`refine`] did.
@@ -88,7 +90,7 @@ pub(super) fn refine(
     let mut next = segments;
     let mut out = Refined::default();
     let split = if p.dominant_fraction > 0.0 || p.stem_radius_m > 0.0 || p.apart_voxel_m > 0.0 {
-        split_segments(xyz, labels, segments, &grid, p)
+        split_segments(xyz, labels, segments, lab, &grid, p)
     } else {
         Split::default()
     };
@@ -104,7 +106,34 @@ pub(super) fn refine(
         .collect();
     let (attached, rest) = attach_to_planes(xyz, labels, next, &left, lab, &grid, p);
     out.attached = attached;
-    out.leftover_segments = label_pieces(grid.components(xyz, &rest), labels, &mut next);
+    // The points left over form pieces of their own, each split off its dominant plane as
+    // the world segments were in step 1: a band of a façade that no scan segmented holds the
+    // windows 10 cm behind it, and as one piece it lay on the façade's plane and joined it.
+    let mut leftover = Vec::new();
+    for part in grid.components(xyz, &rest) {
+        let plane = if part.len() >= MIN_PIECE_POINTS && p.dominant_fraction > 0.0 {
+            dominant_plane(
+                xyz,
+                &part,
+                grid.origin,
+                p.plane_tolerance_m,
+                p.dominant_fraction,
+            )
+        } else {
+            None
+        };
+        match plane {
+            Some(plane) => {
+                let (on, off): (Vec<u32>, Vec<u32>) = part
+                    .iter()
+                    .partition(|&&i| plane.dist(&xyz[i as usize]) <= p.plane_tolerance_m);
+                leftover.push(on);
+                leftover.extend(grid.components(xyz, &off));
+            }
+            _ => leftover.push(part),
+        }
+    }
+    out.leftover_segments = label_pieces(leftover, labels, &mut next);
     out.segments = join_touching(xyz, labels, lab, next, first_piece, &grid, p);
     out
 }
@@ -220,6 +249,7 @@ fn split_segments(
     xyz: &[[f64; 3]],
     labels: &[u32],
     segments: u32,
+    lab: Option<&[[f32; 3]]>,
     grid: &Grid,
     p: &RefineParams,
 ) -> Split {
@@ -236,6 +266,27 @@ fn split_segments(
                     .filter(|&i| plane.dist(&xyz[i as usize]) > tol)
                     .collect();
                 out.pieces.extend(grid.components(xyz, &off));
+                if let (Some(lab), true) = (lab, p.split_colours && p.colour_tolerance > 0.0) {
+                    let mut on: Vec<u32> = idx
+                        .iter()
+                        .copied()
+                        .filter(|&i| plane.dist(&xyz[i as usize]) <= tol)
+                        .collect();
+                    // Two buildings' façades in one plane, joined where a scan's segment
+                    // straddled their border (its mean colour lies near both): each colour
+                    // that holds a region of its own leaves. At most three colours leave.
+                    for _ in 0..3 {
+                        let Some((keep, other)) = colour_split(xyz, &on, lab, grid, p) else {
+                            break;
+                        };
+                        out.apart.extend(
+                            grid.components(xyz, &other)
+                                .into_iter()
+                                .filter(|part| part.len() >= MIN_PIECE_POINTS),
+                        );
+                        on = keep;
+                    }
+                }
             }
             None => {
                 // An object is one connected body. A scan's image joins returns that are no
@@ -271,6 +322,119 @@ fn split_segments(
         }
     }
     out
+}
+
+/// The points `on` (of one plane) split by colour, when they hold two colours more than
+/// `colour_tolerance` apart (ΔE*ab) that each fill regions of their own: two façades in one
+/// plane. The colours are found by 2-means in CIELab, started from the split across the
+/// colours' principal axis; each voxel's points then go together to the colour most of them
+/// have, and at least half of the points must lie in voxels that are ≥ 80 % one colour — a
+/// brick wall's bricks and mortar mix in every voxel and stay one surface. Returns (the larger
+/// colour's points, the other's), None when the points are one colour.
+fn colour_split(
+    xyz: &[[f64; 3]],
+    on: &[u32],
+    lab: &[[f32; 3]],
+    grid: &Grid,
+    p: &RefineParams,
+) -> Option<(Vec<u32>, Vec<u32>)> {
+    if on.len() < 2 * MIN_PIECE_POINTS {
+        return None;
+    }
+    let col = |i: u32| lab[i as usize].map(f64::from);
+    let n = on.len() as f64;
+    let mut mean = [0.0; 3];
+    for &i in on {
+        let c = col(i);
+        (0..3).for_each(|k| mean[k] += c[k] / n);
+    }
+    let mut cov = [[0.0; 3]; 3];
+    for &i in on {
+        let c = col(i);
+        for a in 0..3 {
+            for b in 0..3 {
+                cov[a][b] += (c[a] - mean[a]) * (c[b] - mean[b]) / n;
+            }
+        }
+    }
+    // Principal axis by power iteration, from the coordinate axis of largest variance.
+    let mut axis = [0.0; 3];
+    let big = (0..3)
+        .max_by(|&a, &b| cov[a][a].total_cmp(&cov[b][b]))
+        .unwrap_or(0);
+    axis[big] = 1.0;
+    for _ in 0..30 {
+        let v: [f64; 3] = std::array::from_fn(|a| (0..3).map(|b| cov[a][b] * axis[b]).sum());
+        let len = v.iter().map(|x| x * x).sum::<f64>().sqrt();
+        if len <= 1e-12 {
+            return None;
+        }
+        axis = v.map(|x| x / len);
+    }
+    let d2 = |c: [f64; 3], m: [f64; 3]| (0..3).map(|k| (c[k] - m[k]).powi(2)).sum::<f64>();
+    let mut side: Vec<bool> = on
+        .iter()
+        .map(|&i| {
+            let c = col(i);
+            (0..3).map(|k| (c[k] - mean[k]) * axis[k]).sum::<f64>() > 0.0
+        })
+        .collect();
+    let mut means = [[0.0; 3]; 2];
+    for _ in 0..10 {
+        let mut sum = [[0.0; 3]; 2];
+        let mut cnt = [0usize; 2];
+        for (&i, &s) in on.iter().zip(&side) {
+            let c = col(i);
+            (0..3).for_each(|k| sum[s as usize][k] += c[k]);
+            cnt[s as usize] += 1;
+        }
+        if cnt.contains(&0) {
+            return None;
+        }
+        means = std::array::from_fn(|g| sum[g].map(|v| v / cnt[g] as f64));
+        let mut moved = false;
+        for (&i, s) in on.iter().zip(side.iter_mut()) {
+            let c = col(i);
+            let t = d2(c, means[1]) < d2(c, means[0]);
+            moved |= t != *s;
+            *s = t;
+        }
+        if !moved {
+            break;
+        }
+    }
+    if d2(means[0], means[1]).sqrt() <= p.colour_tolerance {
+        return None;
+    }
+    // Per voxel: points of each colour.
+    let mut voxel: HashMap<[i64; 3], [usize; 2]> = HashMap::new();
+    for (&i, &s) in on.iter().zip(&side) {
+        voxel.entry(grid.key(&xyz[i as usize])).or_default()[s as usize] += 1;
+    }
+    let pure: usize = voxel
+        .values()
+        .filter(|c| 5 * c[0].max(c[1]) >= 4 * (c[0] + c[1]))
+        .map(|c| c[0] + c[1])
+        .sum();
+    if 2 * pure < on.len() {
+        return None;
+    }
+    let (mut a, mut b) = (Vec::new(), Vec::new());
+    for &i in on {
+        let c = voxel[&grid.key(&xyz[i as usize])];
+        if c[1] > c[0] {
+            b.push(i);
+        } else {
+            a.push(i);
+        }
+    }
+    if a.len() < b.len() {
+        std::mem::swap(&mut a, &mut b);
+    }
+    if b.len() < MIN_PIECE_POINTS {
+        return None;
+    }
+    Some((a, b))
 }
 
 /// The stem a segment stands on, when it carries something wider that rises above it: a tree's
@@ -437,15 +601,22 @@ fn join_touching(
         let mut order: Vec<(u32, usize)> = touch.into_iter().collect();
         order.sort_unstable_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
         let piece = l > first_piece;
-        let on_plane = order.iter().find(|&&(o, _)| {
+        let lies_on = |o: u32, colour: bool| {
             let t = shape(o);
             t.plane.is_some_and(|pl| {
                 s.moments
                     .mean_sq_distance(&pl)
                     .is_some_and(|d2| d2.sqrt() <= tol)
-                    && (piece || s.colour_distance(t) <= colour_tol)
+                    && (!colour || s.colour_distance(t) <= colour_tol)
             })
-        });
+        };
+        // A piece takes a plane of its own colour where one touches it, else any: a façade's
+        // piece touching its façade and, in the same plane, the neighbouring building's façade
+        // in another colour joins its own (joining either chained the two façades).
+        let on_plane = order
+            .iter()
+            .find(|&&(o, _)| lies_on(o, true))
+            .or_else(|| order.iter().find(|&&(o, _)| piece && lies_on(o, false)));
         // A stem is enclosed only by a stem: a trunk's piece joins the trunk, the trunk does
         // not join the crown it touches with half its voxels.
         let enclosed_by = || {
@@ -778,6 +949,7 @@ mod tests {
                     stem_radius_m: 0.3,
                     stem_min_height_m: 1.0,
                     apart_voxel_m: 0.5,
+                    split_colours: true,
                 },
             )
         }
@@ -890,6 +1062,64 @@ mod tests {
         );
         assert_ne!(s.one(&part), s.one(&next), "façades of two colours joined");
         assert_ne!(s.one(&car), 0);
+    }
+
+    /// Two buildings' façades in one plane, in two colours, came out of the ties as one
+    /// segment: they are split by colour. A brick wall, two colours mixed in every voxel, stays
+    /// one segment.
+    #[test]
+    fn two_facades_in_one_plane_are_split_by_colour_a_brick_wall_is_not() {
+        let mut s = Scene::new();
+        let cream = s.add(wall((0.0, 6.0), (0.0, 3.0), 0.0, 0.05), 1, WALL);
+        let white = s.add(wall((6.0, 12.0), (0.0, 3.0), 0.0, 0.05), 1, GLASS);
+        let brick = s.add(wall((0.0, 6.0), (0.0, 3.0), 5.0, 0.05), 2, WALL);
+        // Courses 0.1 m high, alternating: every voxel holds both colours, 60/40 either way.
+        for i in brick.clone() {
+            if (s.xyz[i][2] / 0.1).floor() as i64 % 2 == 1 {
+                s.lab[i] = GLASS;
+            }
+        }
+        let r = s.refine();
+        assert_eq!(r.apart, 1);
+        assert_ne!(s.one(&cream), s.one(&white), "the façades stayed one");
+        assert_ne!(s.one(&brick), 0);
+    }
+
+    /// A façade band no scan segmented lies between its façade (short, in its colour) and the
+    /// neighbouring façade (tall, in another colour) in one plane. The band's ends join the
+    /// planes they touch; its middle, a piece, takes the plane of its own colour although it
+    /// touches the other façade more — taking either had chained the two façades.
+    #[test]
+    fn a_piece_joins_the_plane_of_its_own_colour() {
+        let mut s = Scene::new();
+        let own = s.add(wall((0.0, 4.0), (0.0, 1.0), 0.0, 0.05), 1, WALL);
+        let band = s.add(wall((4.0, 8.0), (0.0, 3.0), 0.0, 0.05), 0, WALL);
+        let other = s.add(wall((8.0, 12.0), (0.0, 3.0), 0.0, 0.05), 2, GLASS);
+        s.refine();
+        assert_ne!(s.one(&own), s.one(&other), "the two façades joined");
+        let middle = (band.start..band.end)
+            .find(|&i| (s.xyz[i][0] - 6.0).abs() < 0.03 && (s.xyz[i][2] - 1.5).abs() < 0.03)
+            .expect("a point in the band's middle");
+        assert_eq!(
+            s.labels[middle],
+            s.one(&own),
+            "the band's middle left its façade"
+        );
+    }
+
+    /// Points no segment took — a façade band with a window 10 cm behind it — form one piece;
+    /// it is split off its dominant plane as the world segments are, so the window does not
+    /// join the façade with the band.
+    #[test]
+    fn a_leftover_piece_is_split_off_its_plane() {
+        let mut s = Scene::new();
+        // (2.4 m tall: a dominant plane spreads ≥ 0.5 m, one σ, both ways.)
+        let band = s.add(wall((0.0, 6.0), (0.0, 2.4), 0.0, 0.05), 0, WALL);
+        let window = s.add(wall((2.0, 3.0), (0.8, 1.4), -0.1, 0.05), 0, GLASS);
+        s.refine();
+        assert_ne!(s.one(&band), 0);
+        assert_ne!(s.one(&window), 0);
+        assert_ne!(s.one(&band), s.one(&window), "the window joined the band");
     }
 
     /// Points on a vertical cylinder about (`cx`, `cy`) of radius `r` from `z0` to `z1`, at

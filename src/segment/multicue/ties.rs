@@ -81,6 +81,10 @@ pub struct TieParams {
     /// touching voxels of `voxel_m`) keeps its largest part; its other parts become segments
     /// of their own (`refine.rs`).
     pub split_apart: bool,
+    /// In the refinement, the points on a world segment's dominant plane in two colours more
+    /// than `colour_tolerance` apart, each filling a region of its own, are split by colour
+    /// (two buildings' façades in one plane; `refine.rs`).
+    pub split_colours: bool,
 }
 
 /// Which segment's seen voxels the shared voxels are compared with.
@@ -113,6 +117,7 @@ impl Default for TieParams {
             stem_radius_m: 0.3,
             stem_min_height_m: 1.0,
             split_apart: true,
+            split_colours: true,
         }
     }
 }
@@ -312,6 +317,7 @@ pub fn tie(
             stem_radius_m: p.stem_radius_m,
             stem_min_height_m: p.stem_min_height_m,
             apart_voxel_m: if p.split_apart { p.voxel_m } else { 0.0 },
+            split_colours: p.split_colours,
         };
         let r = refine(xyz, &mut labels, next, &wanted, lab, origin, &rp);
         next = r.segments;
