@@ -12,8 +12,9 @@
 //!    ties' voxels (its other parts become segments) and gives the stem that part stands on
 //!    ([`stem_of`]) a segment of its own;
 //! 2. **attach**: an unsegmented point takes the segment in its own or a neighbouring voxel
-//!    whose plane lies nearest to it, within the tolerance; the points still left become
-//!    pieces by voxel connectivity;
+//!    whose plane lies nearest to it, within the tolerance — and, pass by pass, a wide plane
+//!    of its colour reached through points attached before it; the points still left become
+//!    pieces by voxel connectivity, split off their dominant planes as in step 1;
 //! 3. **join** ([`join_touching`]): touching segments that are one surface (one lies on the
 //!    other's plane) or one object (a segment enclosed by a larger one without a plane: a
 //!    car's glass and its body) are joined.
@@ -52,6 +53,8 @@ pub(super) struct RefineParams {
     pub apart_voxel_m: f64,
     /// A dominant plane's points in two colours ([`colour_split`]) are split by colour.
     pub split_colours: bool,
+    /// Step 2 repeats while points attach (a plane reached through attached points).
+    pub attach_grows: bool,
 }
 
 /// What [`refine`] did.
@@ -495,8 +498,9 @@ fn stem_of(xyz: &[[f64; 3]], idx: &[u32], p: &RefineParams, gap: f64) -> Option<
 }
 
 /// Step 2: each point of `left` takes the segment (with a plane, [`SegmentShape`]) in its own
-/// or a neighbouring voxel whose plane lies nearest, within `plane_tolerance_m`. Returns how
-/// many did, and the others.
+/// or a neighbouring voxel whose plane lies nearest, within `plane_tolerance_m`; with
+/// `attach_grows`, repeated while points attach, through wide planes of the point's colour
+/// only after the first pass. Returns how many did, and the others.
 fn attach_to_planes(
     xyz: &[[f64; 3]],
     labels: &mut [u32],
@@ -508,35 +512,89 @@ fn attach_to_planes(
 ) -> (usize, Vec<u32>) {
     let tol = p.plane_tolerance_m;
     let members = Members::new(&label_nodes(labels), segments as usize);
-    let voxel = grid.labels(xyz, labels);
-    let mut planes: HashMap<u32, Option<Plane>> = HashMap::new();
-    let mut rest = Vec::new();
-    let mut take = Vec::new();
-    for &i in left {
-        let q = &xyz[i as usize];
-        let mut best: Option<(f64, u32)> = None;
-        for v in Grid::around(grid.key(q)) {
-            for &o in voxel.get(&v).map_or(&[][..], |v| v.as_slice()) {
-                let plane = *planes.entry(o).or_insert_with(|| {
-                    SegmentShape::new(xyz, members.of(o as usize - 1), lab, grid.origin, p).plane
-                });
-                let Some(pl) = plane else { continue };
-                let d = pl.dist(q);
-                if d <= tol && best.is_none_or(|b| (d, o) < b) {
-                    best = Some((d, o));
+    let mut voxel = grid.labels(xyz, labels);
+    // Per segment: its plane, whether wide, its mean colour.
+    type Reach = (Option<Plane>, bool, Option<[f64; 3]>);
+    let mut planes: HashMap<u32, Reach> = HashMap::new();
+    let colour_tol = if p.colour_tolerance > 0.0 {
+        p.colour_tolerance
+    } else {
+        f64::INFINITY
+    };
+    let mut left = left.to_vec();
+    let mut attached = 0;
+    // Passes until none attaches: a point attached in one pass lets its neighbours reach the
+    // segment's plane (fixed from the segment as it was) in the next, so a band of a façade no
+    // scan segmented joins its façade across the band, and what lies off the plane (windows
+    // 10 cm behind) is left over. Only wide planes grow so (façades, not a crown's flat-looking
+    // patches, through which a crown's points had reached other segments), and only through
+    // points of their colour (not into the neighbouring building's façade in the same plane).
+    // After the first pass, only points next to a voxel that gained a label are searched again
+    // (the others would find what they found before, under the first pass's wider rule).
+    let mut changed: Option<std::collections::HashSet<[i64; 3]>> = None;
+    for pass in 0.. {
+        let mut rest = Vec::new();
+        let mut take = Vec::new();
+        for &i in &left {
+            let q = &xyz[i as usize];
+            if changed.as_ref().is_some_and(|c| !c.contains(&grid.key(q))) {
+                rest.push(i);
+                continue;
+            }
+            let mut best: Option<(f64, u32)> = None;
+            for v in Grid::around(grid.key(q)) {
+                for &o in voxel.get(&v).map_or(&[][..], |v| v.as_slice()) {
+                    let (plane, wide, colour) = *planes.entry(o).or_insert_with(|| {
+                        let s =
+                            SegmentShape::new(xyz, members.of(o as usize - 1), lab, grid.origin, p);
+                        (s.plane, s.wide, s.colour)
+                    });
+                    let grows = || {
+                        let near = match (lab, colour) {
+                            (Some(lab), Some(c)) => {
+                                let d2: f64 = (0..3)
+                                    .map(|k| (lab[i as usize][k] as f64 - c[k]).powi(2))
+                                    .sum();
+                                d2.sqrt() <= colour_tol
+                            }
+                            _ => true,
+                        };
+                        wide && near
+                    };
+                    let Some(pl) = plane.filter(|_| pass == 0 || grows()) else {
+                        continue;
+                    };
+                    let d = pl.dist(q);
+                    if d <= tol && best.is_none_or(|b| (d, o) < b) {
+                        best = Some((d, o));
+                    }
                 }
             }
+            match best {
+                Some((_, o)) => take.push((i, o)),
+                None => rest.push(i),
+            }
         }
-        match best {
-            Some((_, o)) => take.push((i, o)),
-            None => rest.push(i),
+        // Assigned after the search, so a point's choice does not depend on earlier points.
+        for &(i, o) in &take {
+            labels[i as usize] = o;
+            let v = voxel.entry(grid.key(&xyz[i as usize])).or_default();
+            if !v.contains(&o) {
+                v.push(o);
+            }
         }
+        attached += take.len();
+        left = rest;
+        if take.is_empty() || !p.attach_grows {
+            break;
+        }
+        let mut c = std::collections::HashSet::new();
+        for &(i, _) in &take {
+            c.extend(Grid::around(grid.key(&xyz[i as usize])));
+        }
+        changed = Some(c);
     }
-    // Assigned after the search, so a point's choice does not depend on earlier points.
-    for &(i, o) in &take {
-        labels[i as usize] = o;
-    }
-    (take.len(), rest)
+    (attached, left)
 }
 
 /// Step 3: joins segments that touch (points in the same or neighbouring voxels) and are one
@@ -950,6 +1008,7 @@ mod tests {
                     stem_min_height_m: 1.0,
                     apart_voxel_m: 0.5,
                     split_colours: true,
+                    attach_grows: true,
                 },
             )
         }
@@ -1104,6 +1163,49 @@ mod tests {
             s.labels[middle],
             s.one(&own),
             "the band's middle left its façade"
+        );
+    }
+
+    /// A façade band no scan segmented continues its façade for 5 m, with a window 10 cm
+    /// behind it: the band attaches to the façade across its width, pass by pass; the window is
+    /// left over and becomes a segment of its own. A small flat patch (a crown's or a car's
+    /// part) does not grow so: of the points in its plane beyond it, only those next to it
+    /// attach. (Growing through points of another colour only: `a_piece_joins_…`.)
+    #[test]
+    fn unsegmented_points_attach_across_a_wide_plane_only() {
+        let mut s = Scene::new();
+        let facade = s.add(wall((0.0, 3.0), (0.0, 3.0), 0.0, 0.05), 1, WALL);
+        let band = s.add(wall((3.0, 8.0), (0.0, 3.0), 0.0, 0.05), 0, WALL);
+        let window = s.add(wall((5.0, 6.0), (1.0, 2.0), -0.1, 0.05), 0, GLASS);
+        let r = s.refine();
+        assert_eq!(
+            s.one(&band),
+            s.one(&facade),
+            "the band did not join its façade"
+        );
+        assert!(
+            r.attached >= band.len(),
+            "{} of {} attached",
+            r.attached,
+            band.len()
+        );
+        assert_ne!(s.one(&window), 0);
+        assert_ne!(
+            s.one(&window),
+            s.one(&facade),
+            "the window joined the façade"
+        );
+        // A flat patch 0.6 m square (a plane, not a wide one) and points in its plane beyond:
+        // only those next to the patch attach.
+        let mut s = Scene::new();
+        s.add(wall((0.0, 0.6), (0.0, 0.6), 0.0, 0.05), 1, GLASS);
+        let beyond = s.add(wall((0.6, 4.0), (0.0, 0.6), 0.0, 0.05), 0, GLASS);
+        let r = s.refine();
+        assert!(
+            2 * r.attached < beyond.len(),
+            "a small patch's plane grew: {} of {} attached",
+            r.attached,
+            beyond.len()
         );
     }
 

@@ -85,6 +85,9 @@ pub struct TieParams {
     /// than `colour_tolerance` apart, each filling a region of its own, are split by colour
     /// (two buildings' façades in one plane; `refine.rs`).
     pub split_colours: bool,
+    /// In the refinement, unsegmented points attach to wide planes through points attached
+    /// before them, pass by pass (a façade band no scan segmented joins its façade; `refine.rs`).
+    pub attach_grows: bool,
 }
 
 /// Which segment's seen voxels the shared voxels are compared with.
@@ -118,6 +121,7 @@ impl Default for TieParams {
             stem_min_height_m: 1.0,
             split_apart: true,
             split_colours: true,
+            attach_grows: true,
         }
     }
 }
@@ -318,6 +322,7 @@ pub fn tie(
             stem_min_height_m: p.stem_min_height_m,
             apart_voxel_m: if p.split_apart { p.voxel_m } else { 0.0 },
             split_colours: p.split_colours,
+            attach_grows: p.attach_grows,
         };
         let r = refine(xyz, &mut labels, next, &wanted, lab, origin, &rp);
         next = r.segments;
