@@ -20,15 +20,71 @@ const MAX_HALF: usize = 6;
 /// seen at a grazing angle below θ (far ground) break too.
 #[inline]
 pub fn same_surface(a: f32, b: f32, alpha: f32, tan_theta: f32) -> bool {
+    same_surface_cs(a, b, [alpha.cos(), alpha.sin()], tan_theta)
+}
+
+/// [`same_surface`] with the cosine and sine of the beams' angle given.
+#[inline]
+fn same_surface_cs(a: f32, b: f32, [cos, sin]: [f32; 2], tan_theta: f32) -> bool {
     let (d1, d2) = if a >= b { (a, b) } else { (b, a) };
-    let den = d1 - d2 * alpha.cos();
-    den <= 0.0 || d2 * alpha.sin() >= tan_theta * den
+    let den = d1 - d2 * cos;
+    den <= 0.0 || d2 * sin >= tan_theta * den
+}
+
+/// The surface test of [`same_surface`] between pixels of one image, its trigonometry
+/// computed once: the cosine and sine of the angle between beams up to `reach` rows and
+/// columns apart, from a table (the same values the test computes per pair, so the same
+/// answers). Per pixel pair, `cos` and `sin` had been a tenth of a scan's segmentation time
+/// (`perf` of `benches/multicue.rs`).
+pub struct SurfaceTest {
+    tan_theta: f32,
+    reach: isize,
+    cs: Vec<[f32; 2]>,
+    row_step: f32,
+    col_step: f32,
+}
+
+impl SurfaceTest {
+    /// The test for `img`'s beam spacing with threshold `tan_theta`, tabulated up to `reach`.
+    pub fn new(img: &RangeImage, tan_theta: f32, reach: usize) -> Self {
+        let reach = reach as isize;
+        let mut cs = Vec::with_capacity(((2 * reach + 1) * (2 * reach + 1)) as usize);
+        for dr in -reach..=reach {
+            for dc in -reach..=reach {
+                let alpha = img.step(dr, dc);
+                cs.push([alpha.cos(), alpha.sin()]);
+            }
+        }
+        SurfaceTest {
+            tan_theta,
+            reach,
+            cs,
+            row_step: img.row_step,
+            col_step: img.col_step,
+        }
+    }
+
+    /// Whether returns at ranges `a` and `b`, `dr` rows and `dc` columns apart, lie on one
+    /// surface ([`same_surface`]).
+    #[inline]
+    pub fn holds(&self, a: f32, b: f32, dr: isize, dc: isize) -> bool {
+        let w = 2 * self.reach + 1;
+        let cs = if dr.abs() <= self.reach && dc.abs() <= self.reach {
+            self.cs[((dr + self.reach) * w + dc + self.reach) as usize]
+        } else {
+            let (x, y) = (dr as f32 * self.row_step, dc as f32 * self.col_step);
+            let alpha = (x * x + y * y).sqrt();
+            [alpha.cos(), alpha.sin()]
+        };
+        same_surface_cs(a, b, cs, self.tan_theta)
+    }
 }
 
 /// Unit normals per pixel (zero where none can be computed), oriented towards the sensor.
 /// `window_m` is the paper's `D`; `tan_theta` the surface test of [`same_surface`].
 pub fn normals(img: &RangeImage, window_m: f32, tan_theta: f32) -> Vec<[f32; 3]> {
-    let smooth = smoothed(img, window_m, tan_theta);
+    let test = SurfaceTest::new(img, tan_theta, MAX_HALF);
+    let smooth = smoothed(img, window_m, &test);
     let mut out = vec![[0.0f32; 3]; img.len()];
     for r in 0..img.rows {
         for c in 0..img.cols {
@@ -37,11 +93,9 @@ pub fn normals(img: &RangeImage, window_m: f32, tan_theta: f32) -> Vec<[f32; 3]>
                 continue;
             }
             let diff = |dr: isize, dc: isize| -> Option<[f32; 3]> {
-                let alpha = img.step(dr, dc);
                 let along = |s: isize| {
-                    img.offset(r, c, dr * s, dc * s).filter(|&j| {
-                        img.valid(j) && same_surface(img.range[i], img.range[j], alpha, tan_theta)
-                    })
+                    img.offset(r, c, dr * s, dc * s)
+                        .filter(|&j| img.valid(j) && test.holds(img.range[i], img.range[j], dr, dc))
                 };
                 // Central difference, else one-sided.
                 let (a, b) = match (along(1), along(-1)) {
@@ -67,7 +121,8 @@ pub fn normals(img: &RangeImage, window_m: f32, tan_theta: f32) -> Vec<[f32; 3]>
 }
 
 /// The range image's points after the adaptive Gaussian smoothing (σ = half the window).
-fn smoothed(img: &RangeImage, window_m: f32, tan_theta: f32) -> Vec<[f32; 3]> {
+/// `test` must reach [`MAX_HALF`].
+fn smoothed(img: &RangeImage, window_m: f32, test: &SurfaceTest) -> Vec<[f32; 3]> {
     let mut out = img.xyz.clone();
     if window_m <= 0.0 {
         return out;
@@ -76,6 +131,24 @@ fn smoothed(img: &RangeImage, window_m: f32, tan_theta: f32) -> Vec<[f32; 3]> {
         let d = window_m / (rho * step).max(1e-9);
         ((d * 0.5) as usize).min(MAX_HALF)
     };
+    // The kernel's weights for every pair of half-windows (hr, hc), offsets row-major: the
+    // same expression as per pixel, evaluated once.
+    let side = 2 * MAX_HALF + 1;
+    let weights: Vec<Vec<f32>> = (0..=MAX_HALF)
+        .flat_map(|hr| (0..=MAX_HALF).map(move |hc| (hr, hc)))
+        .map(|(hr, hc)| {
+            let (sr, sc) = ((hr as f32).max(0.5), (hc as f32).max(0.5));
+            let mut w = vec![0.0f32; side * side];
+            for dr in -(hr as isize)..=hr as isize {
+                for dc in -(hc as isize)..=hc as isize {
+                    let (fr, fc) = (dr as f32 / sr, dc as f32 / sc);
+                    w[(dr + MAX_HALF as isize) as usize * side
+                        + (dc + MAX_HALF as isize) as usize] = (-0.5 * (fr * fr + fc * fc)).exp();
+                }
+            }
+            w
+        })
+        .collect();
     for r in 0..img.rows {
         for c in 0..img.cols {
             let i = r * img.cols + c;
@@ -87,19 +160,18 @@ fn smoothed(img: &RangeImage, window_m: f32, tan_theta: f32) -> Vec<[f32; 3]> {
             if hr == 0 && hc == 0 {
                 continue;
             }
-            let (sr, sc) = ((hr as f32).max(0.5), (hc as f32).max(0.5));
+            let kernel = &weights[hr * (MAX_HALF + 1) + hc];
             let (mut acc, mut wsum) = ([0.0f32; 3], 0.0f32);
             for dr in -(hr as isize)..=hr as isize {
                 for dc in -(hc as isize)..=hc as isize {
                     let Some(j) = img.offset(r, c, dr, dc) else {
                         continue;
                     };
-                    let alpha = img.step(dr, dc);
-                    if !img.valid(j) || !same_surface(rho, img.range[j], alpha, tan_theta) {
+                    if !img.valid(j) || !test.holds(rho, img.range[j], dr, dc) {
                         continue;
                     }
-                    let (fr, fc) = (dr as f32 / sr, dc as f32 / sc);
-                    let w = (-0.5 * (fr * fr + fc * fc)).exp();
+                    let w = kernel[(dr + MAX_HALF as isize) as usize * side
+                        + (dc + MAX_HALF as isize) as usize];
                     let p = img.xyz[j];
                     for k in 0..3 {
                         acc[k] += w * p[k];
@@ -162,6 +234,106 @@ mod tests {
         assert!(ground[1] > 1000 && wall[1] > 100, "{ground:?} {wall:?}");
         assert!(ground[0] * 100 >= ground[1] * 98, "{ground:?}");
         assert!(wall[0] * 100 >= wall[1] * 95, "{wall:?}");
+    }
+
+    /// The normals as first written: the surface test's `cos` / `sin` and the kernel's `exp`
+    /// evaluated per pixel pair.
+    fn normals_reference(img: &RangeImage, window_m: f32, tan_theta: f32) -> Vec<[f32; 3]> {
+        let mut smooth = img.xyz.clone();
+        let half = |rho: f32, step: f32| -> usize {
+            ((window_m / (rho * step).max(1e-9) * 0.5) as usize).min(MAX_HALF)
+        };
+        for (i, out) in smooth.iter_mut().enumerate() {
+            let (r, c) = (i / img.cols, i % img.cols);
+            let rho = img.range[i];
+            let (hr, hc) = (half(rho, img.row_step), half(rho, img.col_step));
+            if !img.valid(i) || (hr == 0 && hc == 0) {
+                continue;
+            }
+            let (sr, sc) = ((hr as f32).max(0.5), (hc as f32).max(0.5));
+            let (mut acc, mut wsum) = ([0.0f32; 3], 0.0f32);
+            for dr in -(hr as isize)..=hr as isize {
+                for dc in -(hc as isize)..=hc as isize {
+                    let Some(j) = img.offset(r, c, dr, dc) else {
+                        continue;
+                    };
+                    let alpha = img.step(dr, dc);
+                    if !img.valid(j) || !same_surface(rho, img.range[j], alpha, tan_theta) {
+                        continue;
+                    }
+                    let (fr, fc) = (dr as f32 / sr, dc as f32 / sc);
+                    let w = (-0.5 * (fr * fr + fc * fc)).exp();
+                    (0..3).for_each(|k| acc[k] += w * img.xyz[j][k]);
+                    wsum += w;
+                }
+            }
+            *out = acc.map(|v| v / wsum);
+        }
+        let mut out = vec![[0.0f32; 3]; img.len()];
+        for (i, o) in out.iter_mut().enumerate() {
+            let (r, c) = (i / img.cols, i % img.cols);
+            if !img.valid(i) {
+                continue;
+            }
+            let diff = |dr: isize, dc: isize| -> Option<[f32; 3]> {
+                let alpha = img.step(dr, dc);
+                let along = |s: isize| {
+                    img.offset(r, c, dr * s, dc * s).filter(|&j| {
+                        img.valid(j) && same_surface(img.range[i], img.range[j], alpha, tan_theta)
+                    })
+                };
+                let (a, b) = match (along(1), along(-1)) {
+                    (Some(a), Some(b)) => (a, b),
+                    (Some(a), None) => (a, i),
+                    (None, Some(b)) => (i, b),
+                    (None, None) => return None,
+                };
+                Some(sub(smooth[a], smooth[b]))
+            };
+            if let (Some(v1), Some(v2)) = (diff(0, 1), diff(1, 0)) {
+                let n = cross(v1, v2);
+                let len = dot(n, n).sqrt();
+                if len > 1e-12 {
+                    let s = if dot(n, img.xyz[i]) > 0.0 { -1.0 } else { 1.0 };
+                    *o = n.map(|v| s * v / len);
+                }
+            }
+        }
+        out
+    }
+
+    /// The tabulated trigonometry and kernel weights give the normals bit for bit, near the
+    /// sensor (the largest windows), at range steps, holes and across the seam.
+    #[test]
+    fn tabulated_normals_match_the_reference_bit_for_bit() {
+        let (rows, cols) = (16, 360);
+        let mut pts = plane_and_wall(rows, cols);
+        let mut rng = crate::rng::Rng(9);
+        for p in pts.iter_mut() {
+            if rng.u() < 0.05 {
+                *p = [f32::NAN; 3];
+            } else {
+                // Noise up to 2 cm, and every tenth point pulled in by a quarter (range steps).
+                let f = if rng.u() < 0.1 { 0.75 } else { 1.0 };
+                *p = p.map(|v| f * v + rng.range(-0.02, 0.02) as f32);
+            }
+        }
+        let img =
+            RangeImage::organised(rows, cols, &pts, None, super::super::image::Order::RowMajor)
+                .unwrap();
+        for (window_m, deg) in [(0.3f32, 3f32), (1.0, 10.0), (0.05, 3.0)] {
+            let t = deg.to_radians().tan();
+            let bits = |v: Vec<[f32; 3]>| -> Vec<[u32; 3]> {
+                v.iter().map(|x| x.map(f32::to_bits)).collect()
+            };
+            let got = normals(&img, window_m, t);
+            assert!(got.iter().filter(|n| **n != [0.0; 3]).count() > rows * cols / 3);
+            assert_eq!(
+                bits(got),
+                bits(normals_reference(&img, window_m, t)),
+                "window {window_m} m, {deg}°"
+            );
+        }
     }
 
     #[test]

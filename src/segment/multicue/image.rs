@@ -128,8 +128,9 @@ impl RangeImage {
 
     /// The neighbour of `(r, c)` in direction `(dr, dc)`: the nearest pixel with a return, across
     /// at most `gap` pixels without one (glass and dark paint return few echoes, and such
-    /// dropouts would otherwise cut a surface into pieces), with the angle between the two
-    /// beams; None when there is none that near or the image ends.
+    /// dropouts would otherwise cut a surface into pieces), with how many steps away it lies
+    /// (`k`: `k · dr` rows and `k · dc` columns, for the surface test); None when there is
+    /// none that near or the image ends.
     #[inline]
     pub fn across(
         &self,
@@ -138,11 +139,11 @@ impl RangeImage {
         dr: isize,
         dc: isize,
         gap: usize,
-    ) -> Option<(usize, f32)> {
+    ) -> Option<(usize, isize)> {
         for k in 1..=gap as isize + 1 {
             let j = self.offset(r, c, k * dr, k * dc)?;
             if self.valid(j) {
-                return Some((j, self.step(k * dr, k * dc)));
+                return Some((j, k));
             }
         }
         None

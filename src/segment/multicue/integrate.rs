@@ -14,7 +14,7 @@
 
 use std::collections::BinaryHeap;
 
-use super::cues::same_surface;
+use super::cues::SurfaceTest;
 use super::image::RangeImage;
 use super::meanshift::Jump;
 
@@ -123,6 +123,7 @@ pub fn integrate(
     };
     let mut stamp = vec![0u32; n];
     let mut stamp_now = 0u32;
+    let test = SurfaceTest::new(img, jump.tan_theta, jump.max_gap_px + 1);
     while let Some(c) = heap.pop() {
         if c.coverage < rules.min_coverage {
             break;
@@ -140,7 +141,7 @@ pub fn integrate(
             for &p in &left {
                 stamp[p as usize] = stamp_now;
             }
-            for piece in pieces(img, &left, &mut stamp, stamp_now, jump) {
+            for piece in pieces(img, &left, (&mut stamp, stamp_now), &test, jump) {
                 let id = members[c.cue].len() as u32;
                 for &p in &piece {
                     cues[c.cue].labels[p as usize] = id;
@@ -202,7 +203,13 @@ fn dispersion(values: &[f32], dim: usize, px: &[u32]) -> f32 {
 
 /// Connected pieces (4-neighbours on one surface) of the pixels stamped `now`; each piece's
 /// pixels in ascending order, pieces by first pixel.
-fn pieces(img: &RangeImage, px: &[u32], stamp: &mut [u32], now: u32, jump: Jump) -> Vec<Vec<u32>> {
+fn pieces(
+    img: &RangeImage,
+    px: &[u32],
+    (stamp, now): (&mut [u32], u32),
+    test: &SurfaceTest,
+    jump: Jump,
+) -> Vec<Vec<u32>> {
     let mut out = Vec::new();
     let mut stack = Vec::new();
     for &start in px {
@@ -215,10 +222,8 @@ fn pieces(img: &RangeImage, px: &[u32], stamp: &mut [u32], now: u32, jump: Jump)
         while let Some(i) = stack.pop() {
             let (r, c) = (i / img.cols, i % img.cols);
             for (dr, dc) in [(0, 1), (0, -1), (1, 0), (-1, 0)] {
-                if let Some((j, alpha)) = img.across(r, c, dr, dc, jump.max_gap_px) {
-                    if stamp[j] == now
-                        && same_surface(img.range[i], img.range[j], alpha, jump.tan_theta)
-                    {
+                if let Some((j, k)) = img.across(r, c, dr, dc, jump.max_gap_px) {
+                    if stamp[j] == now && test.holds(img.range[i], img.range[j], k * dr, k * dc) {
                         stamp[j] = 0;
                         piece.push(j as u32);
                         stack.push(j);

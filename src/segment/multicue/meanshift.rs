@@ -16,7 +16,7 @@
 
 use rayon::prelude::*;
 
-use super::cues::same_surface;
+use super::cues::SurfaceTest;
 use super::image::RangeImage;
 
 /// Kernel sizes and stopping rule of one cue's mean shift.
@@ -189,6 +189,7 @@ pub fn group<const D: usize>(
     jump: Jump,
 ) -> (Vec<u32>, u32) {
     let lim = (k.merge * k.hr) * (k.merge * k.hr);
+    let test = SurfaceTest::new(img, jump.tan_theta, jump.max_gap_px + 1);
     let n = img.len();
     let mut uf = UnionFind::new(n);
     for r in 0..img.rows {
@@ -198,11 +199,11 @@ pub fn group<const D: usize>(
                 continue;
             }
             for (dr, dc) in [(0, 1), (1, 0)] {
-                let Some((j, alpha)) = img.across(r, c, dr, dc, jump.max_gap_px) else {
+                let Some((j, k)) = img.across(r, c, dr, dc, jump.max_gap_px) else {
                     continue;
                 };
                 if usable[j]
-                    && same_surface(img.range[i], img.range[j], alpha, jump.tan_theta)
+                    && test.holds(img.range[i], img.range[j], k * dr, k * dc)
                     && d2(&filtered[i], &filtered[j]) < lim
                 {
                     uf.union(i, j);
