@@ -64,7 +64,7 @@ pub struct SegmentSection {
 }
 
 fn default_seg_context() -> f64 {
-    5.0
+    3.0
 }
 
 /// Segmentation stage.
