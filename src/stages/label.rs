@@ -224,7 +224,11 @@ impl Stage for LabelStage {
             .max(model)
     }
     fn context_m(&self) -> Option<f64> {
-        Some(self.section.context_m)
+        // With a classifier the stage reads its descriptors' reach beyond the zone; declared
+        // here, the tiler keeps those points at full density (beyond a stage's context it
+        // thins the buffer, and a model's labels then depended on the tile layout: the
+        // SemanticKITTI folds' building F1 moved 0.689 -> 0.650 when far thinning landed).
+        Some(self.reach_m())
     }
     fn bytes_per_point(&self) -> usize {
         // Neighbour rows (index + distance², k of them, written in place and moved to point
@@ -448,6 +452,22 @@ impl LabelStage {
         }
     }
 
+    /// How far beyond the core the stage reads points, metres: its zone (`context_m`), and
+    /// with a classifier the descriptors' reach around the zone's points — the coarsest
+    /// scale's 3 × 3 × 3 block of 3.2 m voxels reaches 1.5 voxels (4.8 m) from a point at its
+    /// voxel's centre, the ground look-ups of [`crate::label::descriptors`] 5 m — and never
+    /// less than a core point's farthest block voxel (2 voxels, 6.4 m).
+    fn reach_m(&self) -> f64 {
+        let zone = self.section.context_m;
+        if self.model.is_some() || self.collector.is_some() {
+            let coarsest =
+                crate::label::descriptors::SCALES[crate::label::descriptors::SCALES.len() - 1];
+            (zone + 5.0).max(2.0 * coarsest)
+        } else {
+            zone
+        }
+    }
+
     /// The classifier: descriptors of the zone's points (not noise), over those and the points
     /// a few metres around them, then the model's class (ground points get a ground class,
     /// the others a non-ground class), or in training mode the descriptors of the core points
@@ -465,8 +485,7 @@ impl LabelStage {
         let t = std::time::Instant::now();
         let rl = layout.record_len;
         let zone = tile.context_mask(self.section.context_m);
-        // The coarsest scale's block reaches 1.5 voxels (4.8 m) from a point.
-        let around = tile.context_mask(self.section.context_m + 5.0);
+        let around = tile.context_mask(self.reach_m());
         let sub: Vec<usize> = (0..tile.len()).filter(|&i| around[i]).collect();
         let xyz: Vec<[f64; 3]> = sub.iter().map(|&i| tile.xyz[i]).collect();
         let ground: Vec<bool> = sub.iter().map(|&i| is_ground[i]).collect();
