@@ -151,6 +151,11 @@ pub struct RecordLayout {
     /// The extra-bytes attributes of the records (offsets from the start of the extra
     /// bytes), as the inputs' extra-bytes record describes them; empty when unknown.
     pub extras: Vec<ExtraField>,
+    /// Per input file (by its index, the high bits of point ids): the 99th percentile of the
+    /// intensities of its first points ([`crate::io::input::intensity_scales`]), 0 when they
+    /// carry none. Filled only when a stage asks for it ([`crate::stages::Stage::needs_intensity_scales`]);
+    /// empty otherwise.
+    pub intensity_p99: std::sync::Arc<Vec<u16>>,
 }
 
 impl RecordLayout {
@@ -183,6 +188,7 @@ impl RecordLayout {
             format,
             transforms,
             extras: Vec::new(),
+            intensity_p99: Default::default(),
         }
     }
 
@@ -394,6 +400,12 @@ fn dilate(occ: &[u32], nx: usize, ny: usize, r: usize, rows: bool) -> Vec<u32> {
 #[inline]
 pub fn point_id(file: usize, index: u64) -> u64 {
     ((file as u64) << 40) | index
+}
+
+/// The input file index of global point id `id` ([`point_id`]).
+#[inline]
+pub fn file_of(id: u64) -> usize {
+    (id >> 40) as usize
 }
 
 #[cfg(test)]

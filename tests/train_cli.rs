@@ -184,14 +184,17 @@ fn train_then_run_with_the_model_and_refuse_bad_inputs() {
     assert!(!out2.exists() || std::fs::read_dir(&out2).unwrap().next().is_none());
 }
 
-/// A model's labels do not depend on how far buffers are thinned: the classifier reads its
-/// descriptors' reach beyond the label zone, which the stage declares as its context, so the
-/// tiler keeps those points at full density. 25 m tiles (20 m buffers, thinned beyond 10 m)
-/// put most core points near a border.
-/// Before the reach was declared, thinning changed the descriptors of points near tile edges
-/// (the SemanticKITTI folds' building F1 moved 0.689 -> 0.650).
+/// A model's labels do not depend on the tile layout: the classifier reads its descriptors'
+/// reach beyond the label zone, which the stage declares as its context, so the tiler keeps
+/// those points at full density whether or not it thins far buffers; and intensities are
+/// scaled per input file, not per tile. 25 m tiles (20 m buffers, thinned beyond 10 m) put
+/// most core points near a border. Before the reach was declared, thinning changed the
+/// descriptors near tile edges (the SemanticKITTI folds' building F1 moved 0.689 -> 0.650);
+/// with a per-tile intensity scale, 33 of this street's 821,620 points changed class between
+/// 25 m and 50 m tiles. (The descriptors' voxel and ground grids are still aligned to each
+/// tile's first point; on this street that moves no class — see the README, issue 25.)
 #[test]
-fn a_models_labels_do_not_depend_on_far_buffer_thinning() {
+fn a_models_labels_do_not_depend_on_the_tile_layout() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let synthetic = root.join("config/synthetic.toml");
     let d = tempfile::tempdir().unwrap();
@@ -199,7 +202,7 @@ fn a_models_labels_do_not_depend_on_far_buffer_thinning() {
     let o = tessera(&[
         "synth",
         "--length-m",
-        "30",
+        "40",
         "--seed",
         "9",
         "--out",
@@ -217,8 +220,8 @@ fn a_models_labels_do_not_depend_on_far_buffer_thinning() {
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let model_set = format!("label.model={:?}", s(&model));
-    let run = |thin: bool| {
-        let out = d.path().join(format!("out_{thin}"));
+    let run = |tile: u32, thin: bool| {
+        let out = d.path().join(format!("out_{tile}_{thin}"));
         let o = tessera(&[
             "run",
             s(&scene),
@@ -227,7 +230,7 @@ fn a_models_labels_do_not_depend_on_far_buffer_thinning() {
             "--set",
             &model_set,
             "--set",
-            "tiling.tile_size_m=25",
+            &format!("tiling.tile_size_m={tile}"),
             "--set",
             &format!("tiling.thin_far_buffers={thin}"),
             "-q",
@@ -235,20 +238,30 @@ fn a_models_labels_do_not_depend_on_far_buffer_thinning() {
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
         out
     };
-    let (thinned, whole) = (run(true), run(false));
+    let (thinned, whole) = (run(25, true), run(25, false));
     let tiles = common_las_files(&whole);
     assert!(tiles.len() >= 3, "{tiles:?}");
-    let mut points = 0;
     for t in &tiles {
         let other = thinned.join(t.file_name().unwrap());
-        let a = tessera::eval::load_fields(t, 0.001, &["classification"]).unwrap();
-        let b = tessera::eval::load_fields(&other, 0.001, &["classification"]).unwrap();
-        let differ = (a.values[0].iter().zip(&b.values[0]))
-            .filter(|(x, y)| x != y)
-            .count();
-        assert_eq!(differ, 0, "{}: classes differ", t.display());
-        assert_eq!(std::fs::read(t).unwrap(), std::fs::read(&other).unwrap());
-        points += a.values[0].len();
+        assert!(
+            std::fs::read(t).unwrap() == std::fs::read(&other).unwrap(),
+            "{}: thinned and whole buffers differ",
+            t.display()
+        );
     }
-    assert!(points > 100_000, "{points}");
+    // Another layout: every point keeps its class.
+    let classes = |dir: &Path| {
+        let f = tessera::eval::load_fields(dir, 0.001, &["classification"]).unwrap();
+        let mut v: Vec<([i64; 3], u32)> = f.keys.into_iter().zip(f.values[0].clone()).collect();
+        v.sort_unstable();
+        v
+    };
+    let (small, large) = (classes(&thinned), classes(&run(50, true)));
+    assert_eq!(small.len(), large.len());
+    assert!(small.len() > 100_000, "{}", small.len());
+    let differ = small.iter().zip(&large).filter(|(a, b)| a != b).count();
+    assert_eq!(
+        differ, 0,
+        "points whose class (or position) differs between 25 m and 50 m tiles"
+    );
 }

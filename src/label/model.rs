@@ -232,7 +232,7 @@ impl Collector {
 
     /// The tessera code of a global point id of the current run (0: skip).
     pub fn code_of(&self, id: u64) -> u8 {
-        let (file, point) = ((id >> 40) as usize, (id & ((1 << 40) - 1)) as usize);
+        let (file, point) = (crate::model::file_of(id), (id & ((1 << 40) - 1)) as usize);
         let r = self.refs.read().unwrap_or_else(|e| e.into_inner());
         r.1.get(file)
             .and_then(|r| r.get(point))

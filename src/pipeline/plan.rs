@@ -64,7 +64,7 @@ pub struct StitchPlan {
 impl StitchPlan {
     /// Position of a point in the run's inputs: dense, deterministic, unique.
     pub fn ordinal(&self, pid: u64) -> u64 {
-        let file = (pid >> 40) as usize;
+        let file = crate::model::file_of(pid);
         self.first_ordinal
             .get(file)
             .copied()
@@ -220,9 +220,24 @@ fn input_bounds(set: &InputSet) -> [f64; 4] {
 
 /// Scans the inputs in the output point format: the configured one, else the inputs' own,
 /// upgraded to a LAS 1.4 format when a stage writes class codes legacy formats cannot hold
-/// or the output is COPC (formats 6, 7, 8 only). With `pipeline.keep_going`, unreadable
-/// inputs are left out and returned.
+/// or the output is COPC (formats 6, 7, 8 only), with each input's intensity scale when a
+/// stage asks for it. With `pipeline.keep_going`, unreadable inputs are left out and returned.
 fn scan_for_stages(
+    cfg: &Config,
+    stages: &[Box<dyn Stage>],
+    inputs: &[PathBuf],
+) -> Result<(InputSet, Vec<SkippedInput>)> {
+    let (mut set, skipped) = scan_for_format(cfg, stages, inputs)?;
+    if stages.iter().any(|s| s.needs_intensity_scales()) {
+        set.layout.intensity_p99 =
+            std::sync::Arc::new(crate::io::input::intensity_scales(&set.files)?);
+    }
+    Ok((set, skipped))
+}
+
+/// [`scan_for_stages`] up to the point format: the inputs scanned, in a LAS 1.4 format when
+/// the stages' class codes or COPC output need one.
+fn scan_for_format(
     cfg: &Config,
     stages: &[Box<dyn Stage>],
     inputs: &[PathBuf],

@@ -223,6 +223,9 @@ impl Stage for LabelStage {
             .max(geometry)
             .max(model)
     }
+    fn needs_intensity_scales(&self) -> bool {
+        self.model.is_some() || self.collector.is_some()
+    }
     fn context_m(&self) -> Option<f64> {
         // With a classifier the stage reads its descriptors' reach beyond the zone; declared
         // here, the tiler keeps those points at full density (beyond a stage's context it
@@ -510,21 +513,22 @@ impl LabelStage {
                 (r < n, n)
             })
             .unzip();
-        // Intensity (bytes 12–13 of every format) scaled by the 99th percentile.
-        let raw: Vec<u16> = sub
-            .iter()
-            .map(|&i| u16::from_le_bytes([rec(i)[12], rec(i)[13]]))
-            .collect();
-        let intensity: Option<Vec<f32>> = {
-            let mut s: Vec<u16> = raw.iter().copied().step_by(7).collect();
-            s.sort_unstable();
-            let p99 = s.get(s.len() * 99 / 100).copied().unwrap_or(0);
-            (p99 > 0).then(|| {
-                raw.iter()
-                    .map(|&v| (v as f32 / p99 as f32).min(2.0))
-                    .collect()
-            })
+        // Intensity (bytes 12–13 of every format) scaled by the 99th percentile of its input
+        // file (a property of the file, not of the tile); −1 (missing) for files without.
+        let p99 = &layout.intensity_p99;
+        let scale = |i: usize| {
+            p99.get(crate::model::file_of(tile.ids[i]))
+                .copied()
+                .unwrap_or(0)
         };
+        let intensity: Option<Vec<f32>> = sub.iter().any(|&i| scale(i) > 0).then(|| {
+            sub.iter()
+                .map(|&i| match scale(i) {
+                    0 => -1.0,
+                    s => (u16::from_le_bytes([rec(i)[12], rec(i)[13]]) as f32 / s as f32).min(2.0),
+                })
+                .collect()
+        });
         let which: Vec<bool> = sub
             .iter()
             .map(|&i| zone[i] && !matches!(classes[i], 7 | 18))

@@ -63,6 +63,12 @@ pub trait Stage: Send + Sync {
     fn needs_context(&self) -> bool {
         true
     }
+    /// Whether the stage scales intensities by their input file's level
+    /// ([`crate::model::RecordLayout::intensity_p99`]); the pipeline then reads each input's
+    /// first points before the run.
+    fn needs_intensity_scales(&self) -> bool {
+        false
+    }
     /// How far beyond the core the stage works, metres (None: the whole buffer). Sizes its
     /// share of the memory budget.
     fn context_m(&self) -> Option<f64> {
