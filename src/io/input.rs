@@ -33,29 +33,31 @@ const INTENSITY_SAMPLE: usize = 16_384;
 /// alone, so every tiling, thread count and task of a distributed run scales a file's
 /// intensities alike; scaling by each tile's own percentile made a trained model's labels
 /// depend on the tile layout (33 of 821,620 points of a synthetic street changed class
-/// between 25 m and 50 m tiles).
-pub fn intensity_scales(files: &[InputFile]) -> Result<Vec<u16>> {
+/// between 25 m and 50 m tiles). A file whose first points cannot be read gets 0 here; the
+/// run's reader reports it (and `pipeline.keep_going` decides) as for any other run.
+pub fn intensity_scales(files: &[InputFile]) -> Vec<u16> {
     use rayon::prelude::*;
+    let p99 = |f: &InputFile| -> Result<u16> {
+        let mut r = Reader::from_path(&f.path).map_err(|e| Error::las(&f.path, e))?;
+        let mut pd = PointDataBuilder::new().for_header(r.header()).build();
+        r.fill_points(INTENSITY_SAMPLE as u64, &mut pd)
+            .map_err(|e| Error::las(&f.path, e))?;
+        let mut v = Vec::with_capacity(INTENSITY_SAMPLE);
+        for p in pd.points() {
+            v.push(p.map_err(|e| Error::las(&f.path, e))?.intensity);
+        }
+        v.sort_unstable();
+        Ok(v.get(v.len() * 99 / 100).copied().unwrap_or(0))
+    };
     let per_file: Vec<(usize, u16)> = files
         .par_iter()
-        .map(|f| {
-            let mut r = Reader::from_path(&f.path).map_err(|e| Error::las(&f.path, e))?;
-            let mut pd = PointDataBuilder::new().for_header(r.header()).build();
-            r.fill_points(INTENSITY_SAMPLE as u64, &mut pd)
-                .map_err(|e| Error::las(&f.path, e))?;
-            let mut v = Vec::with_capacity(INTENSITY_SAMPLE);
-            for p in pd.points() {
-                v.push(p.map_err(|e| Error::las(&f.path, e))?.intensity);
-            }
-            v.sort_unstable();
-            Ok((f.index, v.get(v.len() * 99 / 100).copied().unwrap_or(0)))
-        })
-        .collect::<Result<_>>()?;
+        .map(|f| (f.index, p99(f).unwrap_or(0)))
+        .collect();
     let mut out = vec![0u16; files.iter().map(|f| f.index + 1).max().unwrap_or(0)];
     for (i, p) in per_file {
         out[i] = p;
     }
-    Ok(out)
+    out
 }
 
 /// All inputs of a run plus the record layout their points are carried in.

@@ -230,7 +230,7 @@ fn scan_for_stages(
     let (mut set, skipped) = scan_for_format(cfg, stages, inputs)?;
     if stages.iter().any(|s| s.needs_intensity_scales()) {
         set.layout.intensity_p99 =
-            std::sync::Arc::new(crate::io::input::intensity_scales(&set.files)?);
+            std::sync::Arc::new(crate::io::input::intensity_scales(&set.files));
     }
     Ok((set, skipped))
 }
