@@ -27,23 +27,29 @@ fn common_las_files(dir: &Path) -> Vec<std::path::PathBuf> {
     v
 }
 
+/// A synthetic street of `length_m` metres from `seed`, written to `dir/scene`.
+fn street(dir: &Path, length_m: &str, seed: &str) -> std::path::PathBuf {
+    let scene = dir.join("scene");
+    let o = tessera(&[
+        "synth",
+        "--length-m",
+        length_m,
+        "--seed",
+        seed,
+        "--out",
+        s(&scene),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    scene
+}
+
 #[test]
 fn train_then_run_with_the_model_and_refuse_bad_inputs() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let synthetic = root.join("config/synthetic.toml");
     let kitti = root.join("config/semantickitti.toml");
     let d = tempfile::tempdir().unwrap();
-    let scene = d.path().join("scene");
-    let o = tessera(&[
-        "synth",
-        "--length-m",
-        "20",
-        "--seed",
-        "4",
-        "--out",
-        s(&scene),
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let scene = street(d.path(), "20", "4");
     let models = d.path().join("models");
     std::fs::create_dir_all(&models).unwrap();
     let model = models.join("street.json");
@@ -198,17 +204,7 @@ fn a_models_labels_do_not_depend_on_the_tile_layout() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let synthetic = root.join("config/synthetic.toml");
     let d = tempfile::tempdir().unwrap();
-    let scene = d.path().join("scene");
-    let o = tessera(&[
-        "synth",
-        "--length-m",
-        "40",
-        "--seed",
-        "9",
-        "--out",
-        s(&scene),
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let scene = street(d.path(), "40", "9");
     let model = d.path().join("street.json");
     let o = tessera(&[
         "train",
