@@ -364,7 +364,10 @@ fn kitti_rules_against_a_model_trained_on_other_frames() {
         "rules {rules:?}, model {model:?}"
     );
     // Simulated cars and poles are what the real training halves lack (a handful of cars):
-    // measured vehicle F1 0.400 without them, 0.727 with them (the rules: 0.687).
+    // measured vehicle F1 0.400 without them, 0.727 with them (the rules: 0.687). Both figures
+    // move with where the descriptors' voxel grids fall: with the grids shifted by 0.1-3.2 m
+    // the model with synthetic objects scored 0.23-0.71 (README, issue 25), so this holds at
+    // today's grid placement, not for every one.
     assert!(
         synthetic[2] > model[2] && synthetic[2] > rules[2],
         "vehicle F1: rules {:.3}, model {:.3}, with synthetic objects {:.3}",
