@@ -360,25 +360,21 @@ fn kitti_rules_against_a_model_trained_on_other_frames() {
     }
     let [rules, model, synthetic] = measured;
     assert!(
-        model[0] > rules[0] && model[1] > rules[1],
+        model[0] > rules[0] && model[1] > rules[1] && model[3] > rules[3],
         "rules {rules:?}, model {model:?}"
     );
-    // Simulated cars and poles are what the real training halves lack (a handful of cars):
-    // measured vehicle F1 0.400 without them, 0.727 with them (the rules: 0.687). Both figures
-    // move with where the descriptors' voxel grids fall: with the grids shifted by 0.1-3.2 m
-    // the model with synthetic objects scored 0.23-0.71 (README, issue 25), so this holds at
-    // today's grid placement, not for every one.
-    assert!(
-        synthetic[2] > model[2] && synthetic[2] > rules[2],
-        "vehicle F1: rules {:.3}, model {:.3}, with synthetic objects {:.3}",
-        rules[2],
-        model[2],
-        synthetic[2]
-    );
-    // Measured with synthetic objects (2026-11-28, intensities scaled per input file): F1
-    // building 0.666, vegetation 0.814, vehicle 0.727, pole 0.741; road 77.6 %, sidewalk
-    // 22.3 %, terrain 50.6 %.
-    let synthetic_floors = [0.62, 0.77, 0.65, 0.70, 0.74, 0.17, 0.46];
+    // Simulated cars and poles are what the real training halves lack (a handful of cars).
+    // With the descriptors' grids anchored to the world and read trilinearly (2026-11-28),
+    // the vehicle F1 over five grid placements (the world grid shifted by 0 / 0.2 / 0.4 /
+    // 0.8 / 1.6 m) was 0.506 / 0.368 / 0.318 / 0.316 / 0.355 without them and 0.380 / 0.540
+    // / 0.602 / 0.375 / 0.567 with them: they help at four of the five placements (median
+    // 0.540 against 0.355) but not at the world grid itself, and never reach the rules'
+    // 0.687. A comparison at one placement tests where voxel edges fall, not the training
+    // set (README, issue 25), so the vehicle figures are held by the floors below only.
+    // Measured with synthetic objects (2026-11-28, world-anchored interpolated grids): F1
+    // building 0.716, vegetation 0.809, vehicle 0.380, pole 0.868; road 74.0 %, sidewalk
+    // 29.9 %, terrain 44.5 %.
+    let synthetic_floors = [0.67, 0.77, 0.34, 0.80, 0.71, 0.25, 0.42];
     for (j, f) in synthetic_floors.iter().enumerate() {
         assert!(
             synthetic[j] >= *f,
@@ -387,10 +383,11 @@ fn kitti_rules_against_a_model_trained_on_other_frames() {
         );
     }
     // Floors a little under the measured values (see the README's issue-25 table).
-    // Measured (default forest): F1 building 0.689, vegetation 0.820, vehicle 0.400, pole
-    // 0.707; frame 700 mapping accuracy road 75.9 %, sidewalk 26.3 %, terrain 52.0 %. The
-    // rules: 0.485, 0.580, 0.687, 0.090; 46.0, 0.0, 41.4 %.
-    let floors = [0.65, 0.78, 0.30, 0.65, 0.72, 0.20, 0.47];
+    // Measured (default forest, 2026-11-28, world-anchored interpolated grids): F1 building
+    // 0.722, vegetation 0.830, vehicle 0.506, pole 0.817; frame 700 mapping accuracy road
+    // 75.3 %, sidewalk 26.9 %, terrain 46.1 % (before: 0.689, 0.820, 0.400, 0.707; 75.9,
+    // 26.3, 52.0 %). The rules: 0.485, 0.580, 0.687, 0.090; 46.0, 0.0, 41.4 %.
+    let floors = [0.68, 0.79, 0.45, 0.77, 0.72, 0.22, 0.43];
     for (j, f) in floors.iter().enumerate() {
         assert!(
             model[j] >= *f,

@@ -128,7 +128,7 @@ pub struct GroundGrid {
 }
 
 impl GroundGrid {
-    /// Builds the grid over the bounding box of `xyz`.
+    /// Builds the grid over the bounding box of `xyz`, its cells aligned to multiples of `cell`.
     pub fn new(xyz: &[[f64; 3]], is_ground: &[bool], cell: f64) -> Self {
         let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
         for p in xyz {
@@ -139,6 +139,9 @@ impl GroundGrid {
             lo = [0.0; 2];
             hi = [0.0; 2];
         }
+        // Cells on the world grid of this cell size, not on the tile's corner: a cell then
+        // averages the same ground points whatever the tile layout.
+        let lo = lo.map(|v| (v / cell).floor() * cell);
         let nx = (((hi[0] - lo[0]) / cell).floor() as usize + 1).min(1 << 14);
         let ny = (((hi[1] - lo[1]) / cell).floor() as usize + 1).min(1 << 14);
         let mut sum = vec![0.0; nx * ny];

@@ -456,26 +456,29 @@ impl LabelStage {
     }
 
     /// How far beyond the core the stage reads points, metres: its zone (`context_m`), and
-    /// with a classifier the descriptors' reach around the zone's points — the coarsest
-    /// scale's 3 × 3 × 3 block of 3.2 m voxels reaches 1.5 voxels (4.8 m) from a point at its
-    /// voxel's centre, the ground look-ups of [`crate::label::descriptors`] 5 m — and never
-    /// less than a core point's farthest block voxel (2 voxels, 6.4 m).
+    /// with a classifier the descriptors' reach around the core points it classifies — a
+    /// point reads each scale's statistics interpolated from the 8 voxels around it, each the
+    /// statistics of a 3 × 3 × 3 block, so at the coarsest scale (3.2 m voxels) points up to
+    /// 2.5 voxels (8 m) away count; the ground look-ups of [`crate::label::descriptors`]
+    /// reach 5 m.
     fn reach_m(&self) -> f64 {
         let zone = self.section.context_m;
         if self.model.is_some() || self.collector.is_some() {
             let coarsest =
                 crate::label::descriptors::SCALES[crate::label::descriptors::SCALES.len() - 1];
-            (zone + 5.0).max(2.0 * coarsest)
+            zone.max(2.5 * coarsest).max(5.0)
         } else {
             zone
         }
     }
 
-    /// The classifier: descriptors of the zone's points (not noise), over those and the points
+    /// The classifier: descriptors of the core points (not noise), over those and the points
     /// a few metres around them, then the model's class (ground points get a ground class,
     /// the others a non-ground class), or in training mode the descriptors of the core points
-    /// with a reference class to the collector. Returns the points it classified and the
-    /// seconds spent on descriptors before the per-point loop.
+    /// with a reference class to the collector. Only core points: a buffer point's class is
+    /// never written by this tile, and the classifier's class of one point feeds no other.
+    /// Returns the points it classified and the seconds spent on descriptors before the
+    /// per-point loop.
     fn classify_points(
         &self,
         tile: &Tile,
@@ -487,7 +490,6 @@ impl LabelStage {
     ) -> (usize, f64) {
         let t = std::time::Instant::now();
         let rl = layout.record_len;
-        let zone = tile.context_mask(self.section.context_m);
         let around = tile.context_mask(self.reach_m());
         let sub: Vec<usize> = (0..tile.len()).filter(|&i| around[i]).collect();
         let xyz: Vec<[f64; 3]> = sub.iter().map(|&i| tile.xyz[i]).collect();
@@ -531,7 +533,7 @@ impl LabelStage {
         });
         let which: Vec<bool> = sub
             .iter()
-            .map(|&i| zone[i] && !matches!(classes[i], 7 | 18))
+            .map(|&i| i < tile.n_core && !matches!(classes[i], 7 | 18))
             .collect();
         let inp = DescribeInput {
             xyz: &xyz,
@@ -557,7 +559,7 @@ impl LabelStage {
             d.row(k, &mut row);
             if let Some(c) = &self.collector {
                 let code = c.code_of(tile.ids[i]);
-                if i < tile.n_core && code != 0 {
+                if code != 0 {
                     c.add(code, tile.ids[i], is_ground[i], &row);
                 }
             }
