@@ -846,4 +846,93 @@ mod tests {
                 < 1e-3
         );
     }
+
+    /// Rows of `xyz` (all points classified) with no segments, objects or returns.
+    fn rows(xyz: &[[f64; 3]], of: &[usize]) -> Vec<Vec<f32>> {
+        let n = xyz.len();
+        let hag: Vec<f64> = xyz.iter().map(|p| p[2]).collect();
+        let g: Vec<bool> = xyz.iter().map(|p| p[2] < 0.01).collect();
+        let zeros = vec![0u32; n];
+        let rule = vec![0u8; n];
+        let inp = DescribeInput {
+            xyz,
+            hag: &hag,
+            is_ground: &g,
+            segment: &zeros,
+            object: &zeros,
+            rule: &rule,
+            non_last: None,
+            returns: None,
+            intensity: None,
+        };
+        let d = Descriptors::new(&inp, &vec![true; n]);
+        of.iter()
+            .map(|&i| {
+                let mut r = vec![0.0; feature_count()];
+                d.row(i, &mut r);
+                r
+            })
+            .collect()
+    }
+
+    /// A 16 × 10 m ground plane at 0.1 m spacing with a 6 m wall along x = 11 m, placed at
+    /// `x0, y0` in the world.
+    fn plane_and_wall(x0: f64, y0: f64) -> Vec<[f64; 3]> {
+        let mut xyz = Vec::new();
+        for i in 0..160 {
+            for j in 0..100 {
+                xyz.push([x0 + i as f64 * 0.1 + 0.05, y0 + j as f64 * 0.1 + 0.05, 0.0]);
+            }
+        }
+        for j in 0..100 {
+            for k in 1..60 {
+                xyz.push([x0 + 11.0, y0 + j as f64 * 0.1 + 0.05, k as f64 * 0.1]);
+            }
+        }
+        xyz
+    }
+
+    #[test]
+    fn features_do_not_jump_where_a_voxel_edge_falls() {
+        // Two points 0.2 mm apart on either side of x = 6.4 m, an edge of the 3.2 m voxels:
+        // the block of the voxel on the right reaches the wall at 11 m (12 of its 27 voxels
+        // occupied), that of the voxel on the left does not (9). Read from one voxel, the
+        // coarse occupancy jumped by 3 / 27 there; interpolated, both points sit half-way
+        // between the two voxels' centres and read 10.5 / 27, and every feature agrees.
+        let mut xyz = plane_and_wall(0.0, 0.0);
+        let (a, b) = (xyz.len(), xyz.len() + 1);
+        xyz.push([6.4 - 1e-4, 4.8, 0.0]);
+        xyz.push([6.4 + 1e-4, 4.8, 0.0]);
+        let r = rows(&xyz, &[a, b]);
+        let names = feature_names();
+        let per_scale = SCALES.len() * PER_SCALE.len();
+        for ((name, u), v) in names.iter().zip(&r[0]).zip(&r[1]).take(per_scale) {
+            assert!((u - v).abs() < 0.01, "{name}: {u} and {v}");
+        }
+        let occupancy = 5 * PER_SCALE.len();
+        for row in &r {
+            assert!(
+                (row[occupancy] - 10.5 / 27.0).abs() < 0.01,
+                "{}",
+                row[occupancy]
+            );
+        }
+    }
+
+    #[test]
+    fn rows_do_not_depend_on_the_first_point_or_far_points() {
+        // The grids are anchored to the world: the same points after a cluster 35 m away (a
+        // tile reaching further, and another first point, which the grids followed before)
+        // give the same rows bit for bit.
+        let (x0, y0) = (120_003.7, 484_951.3);
+        let xyz = plane_and_wall(x0, y0);
+        let probe = [0, 8_050, 15_999, 16_000 + 1_450];
+        let first = rows(&xyz, &probe);
+        let mut other: Vec<[f64; 3]> = (0..50)
+            .map(|k| [x0 + 51.0 + k as f64 * 0.01, y0 + 1.0, 0.0])
+            .collect();
+        other.extend_from_slice(&xyz);
+        let moved: Vec<usize> = probe.iter().map(|&i| i + 50).collect();
+        assert_eq!(first, rows(&other, &moved));
+    }
 }
