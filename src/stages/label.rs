@@ -240,12 +240,14 @@ impl Stage for LabelStage {
         // context point including the per-tile arrays below (synthetic street, 1.0 M of a
         // tile's 1.27 M points in the context; 218 B when the rows were packed into a second
         // copy, 348 B with the per-point lists of the kd-tree search).
-        // The classifier's descriptors: a voxel index per scale and column, per-voxel block
-        // statistics (40 B per voxel, at most one voxel per point and scale), the copies of
-        // coordinates, heights and flags of its points (~60 B), over the zone and 5 m more.
-        // Measured by `tests/stage_memory.rs` with a model: the simulated drive's worst tile
-        // grew 32.8 MiB against 39.9 MiB charged (15.1 MiB without the classifier), the
-        // street's 62.1 against 122.0 MiB.
+        // The classifier's descriptors: the finest voxel of each point, a dual cell per point
+        // (finest scale) or per finest voxel (coarser ones) and its 8 corner voxels (32 B per
+        // dual cell), per-voxel block statistics (40 B per voxel, at most one voxel per point
+        // and scale), a column cell per point and size, the copies of coordinates, heights and
+        // flags of its points (~60 B), over the core and 8 m more. Measured by
+        // `tests/stage_memory.rs` with a model (2026-11-28, world-anchored interpolated
+        // descriptors): the simulated drive's worst tile grew 26.2 MiB against 70.6 MiB
+        // charged, the street's 198.5 against 480.5 MiB.
         let classifier = if self.model.is_some() || self.collector.is_some() {
             160
         } else {
