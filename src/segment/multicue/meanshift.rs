@@ -5,11 +5,14 @@
 //! it to the mean of the pixels within `hs` pixels (square) whose value lies within `hr` of
 //! the window's value (uniform kernel), until the move is below a hundredth of `hr` and half
 //! a pixel, or after `max_iter` moves; the pixel's filtered value is where its window ends.
-//! Basins of attraction (`basin`, as in Comaniciu & Meer's faster filter): a pixel up to
-//! `basin` columns to the right of a window's start, in the same row, that the window passed
-//! within a pixel of while its value lay within `hr / 2` of the pixel's, takes that window's end
-//! value and starts no window of its own. Rows are independent, so results do not depend on
-//! the thread count; a pixel that starts its own window gets the same value as without basins.
+//! Basins of attraction (`basin`, as in Comaniciu & Meer's faster filter): a pixel not filtered
+//! yet — up to `basin` columns to the right of a window's start in its row, or up to `basin`
+//! columns either side in the `basin_rows` rows below — that the window passed within a pixel
+//! of while its value lay within `hr / 2` of the pixel's, takes that window's end value and
+//! starts no window of its own. Rows are filtered top to bottom in bands of `1 + basin_rows`
+//! rows, and a window hands its value on only inside its band; bands are independent, so
+//! results do not depend on the thread count. A pixel that starts its own window gets the same
+//! value as without basins.
 //! Grouping: 4-neighbouring pixels whose filtered values lie within `merge · hr` and that
 //! lie on one surface ([`super::cues::same_surface`]) join one segment, so a segment is also
 //! connected in 3-D.
@@ -29,8 +32,12 @@ pub struct Kernel {
     /// Most window moves per pixel.
     pub max_iter: usize,
     /// Basins of attraction: pixels up to this many columns to the right of a window's start
-    /// may take its end value (0: every pixel starts its own window, the exact filter).
+    /// (and either side in the rows below, `basin_rows`) may take its end value (0: every
+    /// pixel starts its own window, the exact filter).
     pub basin: usize,
+    /// Basins also reach this many rows below a window's start (within its band of
+    /// `1 + basin_rows` rows, see [`filter`]); 0: the window's own row only.
+    pub basin_rows: usize,
     /// Grouping: filtered values within `merge · hr` join.
     pub merge: f32,
 }
@@ -62,98 +69,138 @@ pub fn filter<const D: usize>(
     usable: &[bool],
     k: Kernel,
 ) -> Vec<[f32; D]> {
-    let hr2 = k.hr * k.hr;
-    let stop_v = (0.01 * k.hr) * (0.01 * k.hr);
-    let hs = k.hs as isize;
-    let (rows, cols) = (img.rows as isize, img.cols as isize);
+    let near = k.hr * k.hr * 0.25;
     let mut out = values.to_vec();
-    out.par_chunks_mut(img.cols)
+    let cols = img.cols;
+    // Bands of `1 + basin_rows` rows: a band's rows are filtered top to bottom, so a window
+    // may hand its value to pixels of the rows below it in its band; bands are independent of
+    // each other (and run in parallel), so the result does not depend on the thread count.
+    let band = 1 + if k.basin > 0 { k.basin_rows } else { 0 };
+    out.par_chunks_mut(cols * band)
         .enumerate()
-        .for_each(|(r, row)| {
-            // Pixels of this row that took a window's value (basins), and the window's path.
-            let mut taken = vec![false; img.cols];
+        .for_each(|(b, chunk)| {
+            let band_rows = chunk.len() / cols;
+            // Pixels of this band that took a window's value (basins), and the window's path.
+            let mut taken = vec![false; chunk.len()];
             let mut path: Vec<([f32; D], f32, f32)> = Vec::new();
-            for c in 0..img.cols {
-                let i = r * img.cols + c;
-                if !usable[i] || taken[c] {
-                    continue;
-                }
-                let mut y = values[i];
-                // Window centre as an offset from the pixel, in pixels.
-                let (mut yr, mut yc) = (0.0f32, 0.0f32);
-                path.clear();
-                for _ in 0..k.max_iter {
-                    if k.basin > 0 {
-                        path.push((y, yr, yc));
+            for lr in 0..band_rows {
+                let r = b * band + lr;
+                for c in 0..cols {
+                    let i = r * cols + c;
+                    if !usable[i] || taken[lr * cols + c] {
+                        continue;
                     }
-                    let (cr, cc) = (yr.round() as isize, yc.round() as isize);
-                    let mut acc = [0.0f32; D];
-                    let (mut sr, mut sc, mut n) = (0.0f32, 0.0f32, 0u32);
-                    let mut take = |v: &[f32; D], dr: isize, dc: isize| {
-                        // Not `<`: a NaN distance is taken, as it always was.
-                        let far = d2(v, &y) >= hr2;
-                        if !far {
-                            for t in 0..D {
-                                acc[t] += v[t];
-                            }
-                            sr += dr as f32;
-                            sc += dc as f32;
-                            n += 1;
-                        }
-                    };
-                    let (r0, c0) = (r as isize + cr - hs, c as isize + cc - hs);
-                    let (r1, c1) = (r0 + 2 * hs, c0 + 2 * hs);
-                    if r0 >= 0 && c0 >= 0 && r1 < rows && c1 < cols {
-                        // The window lies inside the image: each of its rows is one run of
-                        // pixels, read without per-pixel bounds or wrap-around arithmetic.
-                        // Same pixels in the same order as below, hence the same sums.
-                        for rr in r0..=r1 {
-                            let at = rr as usize * img.cols;
-                            let run = at + c0 as usize..=at + c1 as usize;
-                            let cells = values[run.clone()].iter().zip(&usable[run]);
-                            for (t, (v, &u)) in cells.enumerate() {
-                                if u {
-                                    take(v, rr - r as isize, c0 + t as isize - c as isize);
-                                }
-                            }
-                        }
-                    } else {
-                        for dr in cr - hs..=cr + hs {
-                            for dc in cc - hs..=cc + hs {
-                                if let Some(j) = img.offset(r, c, dr, dc) {
-                                    if usable[j] {
-                                        take(&values[j], dr, dc);
-                                    }
-                                }
-                            }
-                        }
+                    let y = window(img, values, usable, k, (r, c), &mut path);
+                    chunk[lr * cols + c] = y;
+                    if k.basin == 0 {
+                        continue;
                     }
-                    if !shift_window(&mut y, (&mut yr, &mut yc), acc, (sr, sc, n), stop_v) {
-                        break;
-                    }
-                }
-                row[c] = y;
-                if k.basin > 0 {
-                    path.push((y, yr, yc));
-                    let near = hr2 * 0.25;
-                    for c2 in c + 1..=(c + k.basin).min(img.cols - 1) {
-                        let j = r * img.cols + c2;
-                        if !usable[j] || taken[c2] {
-                            continue;
-                        }
-                        let dc = (c2 - c) as f32;
-                        let passed = path.iter().any(|&(py, pr, pc)| {
-                            pr.abs() <= 1.0 && (dc - pc).abs() <= 1.0 && d2(&values[j], &py) < near
-                        });
-                        if passed {
-                            taken[c2] = true;
-                            row[c2] = y;
+                    // Pixels not filtered yet: later in this row, or in the band's rows below
+                    // (at most `basin_rows` down), up to `basin` columns either side.
+                    let last_row = (lr + k.basin_rows).min(band_rows - 1);
+                    for lr2 in lr..=last_row {
+                        let from = if lr2 == lr {
+                            c + 1
+                        } else {
+                            c.saturating_sub(k.basin)
+                        };
+                        for c2 in from..=(c + k.basin).min(cols - 1) {
+                            let at = lr2 * cols + c2;
+                            let j = b * band * cols + at;
+                            if !usable[j] || taken[at] {
+                                continue;
+                            }
+                            let (dr, dc) = ((lr2 - lr) as f32, c2 as f32 - c as f32);
+                            let passed = path.iter().any(|&(py, pr, pc)| {
+                                (dr - pr).abs() <= 1.0
+                                    && (dc - pc).abs() <= 1.0
+                                    && d2(&values[j], &py) < near
+                            });
+                            if passed {
+                                taken[at] = true;
+                                chunk[at] = y;
+                            }
                         }
                     }
                 }
             }
         });
     out
+}
+
+/// The mean shift of the window started at pixel `(r, c)` with its own value: where it ends.
+/// With basins (`k.basin > 0`), `path` is left holding each value and centre offset (pixels,
+/// from `(r, c)`) the window had, its end included.
+fn window<const D: usize>(
+    img: &RangeImage,
+    values: &[[f32; D]],
+    usable: &[bool],
+    k: Kernel,
+    (r, c): (usize, usize),
+    path: &mut Vec<([f32; D], f32, f32)>,
+) -> [f32; D] {
+    let hr2 = k.hr * k.hr;
+    let stop_v = (0.01 * k.hr) * (0.01 * k.hr);
+    let hs = k.hs as isize;
+    let (rows, cols) = (img.rows as isize, img.cols as isize);
+    let mut y = values[r * img.cols + c];
+    // Window centre as an offset from the pixel, in pixels.
+    let (mut yr, mut yc) = (0.0f32, 0.0f32);
+    path.clear();
+    for _ in 0..k.max_iter {
+        if k.basin > 0 {
+            path.push((y, yr, yc));
+        }
+        let (cr, cc) = (yr.round() as isize, yc.round() as isize);
+        let mut acc = [0.0f32; D];
+        let (mut sr, mut sc, mut n) = (0.0f32, 0.0f32, 0u32);
+        let mut take = |v: &[f32; D], dr: isize, dc: isize| {
+            // Not `<`: a NaN distance is taken, as it always was.
+            let far = d2(v, &y) >= hr2;
+            if !far {
+                for t in 0..D {
+                    acc[t] += v[t];
+                }
+                sr += dr as f32;
+                sc += dc as f32;
+                n += 1;
+            }
+        };
+        let (r0, c0) = (r as isize + cr - hs, c as isize + cc - hs);
+        let (r1, c1) = (r0 + 2 * hs, c0 + 2 * hs);
+        if r0 >= 0 && c0 >= 0 && r1 < rows && c1 < cols {
+            // The window lies inside the image: each of its rows is one run of pixels, read
+            // without per-pixel bounds or wrap-around arithmetic. Same pixels in the same
+            // order as below, hence the same sums.
+            for rr in r0..=r1 {
+                let at = rr as usize * img.cols;
+                let run = at + c0 as usize..=at + c1 as usize;
+                let cells = values[run.clone()].iter().zip(&usable[run]);
+                for (t, (v, &u)) in cells.enumerate() {
+                    if u {
+                        take(v, rr - r as isize, c0 + t as isize - c as isize);
+                    }
+                }
+            }
+        } else {
+            for dr in cr - hs..=cr + hs {
+                for dc in cc - hs..=cc + hs {
+                    if let Some(j) = img.offset(r, c, dr, dc) {
+                        if usable[j] {
+                            take(&values[j], dr, dc);
+                        }
+                    }
+                }
+            }
+        }
+        if !shift_window(&mut y, (&mut yr, &mut yc), acc, (sr, sc, n), stop_v) {
+            break;
+        }
+    }
+    if k.basin > 0 {
+        path.push((y, yr, yc));
+    }
+    y
 }
 
 /// Moves a window to the mean of the `n` pixels it took (value sums `acc`, offset sums `sr`,
@@ -330,6 +377,7 @@ mod tests {
                     max_iter: 6,
                     merge: 0.5,
                     basin: 0,
+                    basin_rows: 0,
                 };
                 let got = filter(&img, &v, &usable, k);
                 let want = filter_reference(&img, &v, &usable, k);
@@ -345,7 +393,8 @@ mod tests {
     #[test]
     fn basins_hand_on_a_window_value_only_to_pixels_it_passed_with_a_close_value() {
         // Rows of noisy levels with a step of 3 (twice the bandwidth) every 7 columns, the
-        // steps one column further in each row (so windows start at every place before one).
+        // steps one column further in each row (so windows start at every place before one,
+        // and a pixel below a window's start may lie across a step from it).
         let (rows, cols) = (14, 40);
         let level = |i: usize| (i % cols + i / cols) / 7;
         let mut rng = crate::rng::Rng(5);
@@ -355,44 +404,69 @@ mod tests {
         let usable = vec![true; v.len()];
         let img = flat_image(rows, cols);
         // Two moves: windows end apart, so a value taken from a neighbour shows.
-        let kernel = |basin| Kernel {
+        let kernel = |basin, basin_rows| Kernel {
             hs: 2,
             hr: 1.5,
             max_iter: 2,
             merge: 0.5,
             basin,
+            basin_rows,
         };
-        let exact = filter(&img, &v, &usable, kernel(0));
-        let fast = filter(&img, &v, &usable, kernel(2));
-        let mut adopted = 0;
-        for i in 0..v.len() {
-            if fast[i] == exact[i] {
-                continue;
+        let exact = filter(&img, &v, &usable, kernel(0, 0));
+        for (basin, basin_rows) in [(2, 0), (1, 1), (2, 2)] {
+            let fast = filter(&img, &v, &usable, kernel(basin, basin_rows));
+            let band = 1 + basin_rows;
+            let (mut adopted, mut from_above) = (0, 0);
+            for i in 0..v.len() {
+                if fast[i] == exact[i] {
+                    continue;
+                }
+                // Not its own window's value: that of a window started at most `basin`
+                // columns to the left in the same row, or at most `basin` columns either side
+                // in a row above in the same band — on the same level (a step is twice the
+                // bandwidth away).
+                let (r, c) = (i / cols, i % cols);
+                let starts = (r - r % band..=r).flat_map(|r2| {
+                    let (lo, hi) = if r2 == r {
+                        (c.saturating_sub(basin), c.saturating_sub(1))
+                    } else {
+                        (c.saturating_sub(basin), (c + basin).min(cols - 1))
+                    };
+                    (lo..=hi).map(move |c2| r2 * cols + c2)
+                });
+                let from = starts
+                    .filter(|&j| j != i)
+                    .find(|&j| fast[i] == exact[j])
+                    .unwrap_or_else(|| {
+                        panic!(
+                            "basin {basin}/{basin_rows}, pixel {i}: {:?} is no window's",
+                            fast[i]
+                        )
+                    });
+                assert_eq!(
+                    level(i),
+                    level(from),
+                    "basin {basin}/{basin_rows}: pixel {i} took a value across a step"
+                );
+                adopted += 1;
+                from_above += usize::from(from / cols < r);
             }
-            // Not its own window's value: that of a window started at most 2 columns to the
-            // left in the same row, on the same level (a step is twice the bandwidth away).
-            let c = i % cols;
-            let from = (1..=2.min(c)).find(|&d| fast[i] == exact[i - d]);
-            let d = from.unwrap_or_else(|| panic!("pixel {i}: {:?} is no window's", fast[i]));
-            assert_eq!(
-                level(i),
-                level(i - d),
-                "pixel {i} took a value across a step"
+            // A third or more of the pixels take a neighbour's value instead of starting a
+            // window; with rows below in the basin, some take it from the row above.
+            assert!(
+                adopted > v.len() / 3,
+                "basin {basin}/{basin_rows}: only {adopted} of {} pixels adopted",
+                v.len()
             );
-            adopted += 1;
+            assert_eq!(from_above > 0, basin_rows > 0, "{from_above} from above");
+            // A different row order (threads) gives the same result.
+            let one = rayon::ThreadPoolBuilder::new()
+                .num_threads(1)
+                .build()
+                .unwrap();
+            let k = kernel(basin, basin_rows);
+            assert_eq!(one.install(|| filter(&img, &v, &usable, k)), fast);
         }
-        // A third or more of the pixels take a neighbour's value instead of starting a window.
-        assert!(
-            adopted > v.len() / 3,
-            "only {adopted} of {} pixels adopted",
-            v.len()
-        );
-        // A different row order (threads) gives the same result.
-        let one = rayon::ThreadPoolBuilder::new()
-            .num_threads(1)
-            .build()
-            .unwrap();
-        assert_eq!(one.install(|| filter(&img, &v, &usable, kernel(2))), fast);
     }
 
     #[test]
@@ -413,6 +487,7 @@ mod tests {
             max_iter: 10,
             merge: 0.5,
             basin: 0,
+            basin_rows: 0,
         };
         let f = filter(&img, &v, &usable, k);
         let jump = STRICT;
@@ -443,6 +518,7 @@ mod tests {
             max_iter: 3,
             merge: 0.5,
             basin: 0,
+            basin_rows: 0,
         };
         let f = filter(&img, &v, &usable, k);
         let (lab, n) = group(&img, &f, &usable, k, STRICT);
@@ -481,6 +557,7 @@ mod tests {
             max_iter: 3,
             merge: 0.5,
             basin: 0,
+            basin_rows: 0,
         };
         let f = filter(&img, &v, &usable, k);
         let run = |max_gap_px| {

@@ -39,10 +39,13 @@ pub struct MulticueParams {
     /// Most mean-shift moves per pixel.
     pub max_iter: usize,
     /// Mean-shift basins of attraction ([`meanshift`]): a pixel up to this many columns after
-    /// a window's start in its row, passed by the window with a value within half the
-    /// bandwidth, takes the window's end value instead of starting its own (0: every pixel
-    /// starts a window, the exact filter).
+    /// a window's start in its row (or either side in the rows below, `basin_rows`), passed by
+    /// the window with a value within half the bandwidth, takes the window's end value instead
+    /// of starting its own (0: every pixel starts a window, the exact filter).
     pub basin_px: usize,
+    /// Basins also reach this many rows below a window's start (rows are filtered in bands of
+    /// `1 + basin_rows`; 0: the window's own row only).
+    pub basin_rows: usize,
     /// Grouping: filtered values within this share of the bandwidth join.
     pub merge: f32,
     /// Range cue bandwidth, metres.
@@ -87,7 +90,8 @@ impl Default for MulticueParams {
         MulticueParams {
             hs_px: 2,
             max_iter: 5,
-            basin_px: 2,
+            basin_px: 3,
+            basin_rows: 1,
             merge: 0.5,
             range_hr_m: 0.5,
             normal_hr_deg: 15.0,
@@ -141,6 +145,12 @@ impl MulticueParams {
             return Err(format!(
                 "segment.multicue: basin_px must be at most 32, got {}",
                 self.basin_px
+            ));
+        }
+        if self.basin_rows > 8 {
+            return Err(format!(
+                "segment.multicue: basin_rows must be at most 8, got {}",
+                self.basin_rows
             ));
         }
         if self.normal_hr_deg >= 180.0 || self.normal_max_dispersion_deg >= 180.0 {
@@ -244,6 +254,7 @@ pub fn segment_scan(img: &RangeImage, p: &MulticueParams) -> ScanSegmentation {
         max_iter: p.max_iter,
         merge: p.merge,
         basin: p.basin_px,
+        basin_rows: p.basin_rows,
     };
     for cue in [Cue::Range, Cue::Normals, Cue::Colour] {
         if !wanted.contains(&cue) {
@@ -498,6 +509,11 @@ mod tests {
             ..Default::default()
         };
         assert!(p.validate().unwrap_err().contains("basin_px"));
+        p = MulticueParams {
+            basin_rows: 9,
+            ..Default::default()
+        };
+        assert!(p.validate().unwrap_err().contains("basin_rows"));
         p = MulticueParams {
             max_gap_px: 9,
             ..Default::default()
