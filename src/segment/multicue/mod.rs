@@ -88,7 +88,7 @@ pub struct MulticueParams {
 impl Default for MulticueParams {
     fn default() -> Self {
         MulticueParams {
-            hs_px: 2,
+            hs_px: 1,
             max_iter: 5,
             basin_px: 3,
             basin_rows: 1,
