@@ -17,8 +17,12 @@
 //! segments against the semantic labels (share of segmented points carrying their segment's
 //! majority label), for multicue and region growing.
 //!
+//! Each input's line ends with a checksum of every scan's integrated pixel labels: a change
+//! meant to leave the result alone (a faster loop) must leave it unchanged.
+//!
 //! Usage: `cargo bench --bench multicue [-- FILE.mcap ...]`; env `DRIVE_LENGTH_M` (default 60),
-//! `MULTICUE` (TOML overriding `MulticueParams`, e.g. `MULTICUE='hs_px = 1'`).
+//! `MULTICUE` (TOML overriding `MulticueParams`, e.g. `MULTICUE='hs_px = 1'`), `MULTICUE_ONLY`
+//! (set: skip region growing and the scoring, for profiling the multi-cue method alone).
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -135,7 +139,7 @@ fn scans(path: &Path) -> Vec<Scan> {
 
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
-    v.get(v.len() / 2).copied().unwrap_or(0.0)
+    v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
 }
 
 fn run(path: &Path, pool: &rayon::ThreadPool) {
@@ -152,6 +156,7 @@ fn run(path: &Path, pool: &rayon::ThreadPool) {
     let (mut integrated, mut region, mut cues) = (Counts::default(), Counts::default(), Vec::new());
     let mut secs = [0.0f64; 3];
     let (mut accepted, mut rejected) = (Vec::new(), 0u32);
+    let mut checksum = 0xcbf2_9ce4_8422_2325u64;
     for s in &scans {
         let lab: Option<Vec<[f32; 3]>> = s.rgb.as_ref().map(|c| {
             let max = c.iter().flatten().copied().max().unwrap_or(0);
@@ -177,6 +182,11 @@ fn run(path: &Path, pool: &rayon::ThreadPool) {
         for (a, b) in secs.iter_mut().zip(seg.seconds) {
             *a += b;
         }
+        // FNV-1a over every scan's pixel labels: optimisations that must not change the
+        // result show it here.
+        for &l in &seg.pixel_labels {
+            checksum = (checksum ^ l as u64).wrapping_mul(0x100_0000_01b3);
+        }
         accepted.resize(seg.integrated.from_cue.len(), 0u32);
         for (a, f) in accepted.iter_mut().zip(&seg.integrated.from_cue) {
             *a += f;
@@ -190,6 +200,9 @@ fn run(path: &Path, pool: &rayon::ThreadPool) {
         let pts: Vec<[f64; 3]> = idx.iter().map(|&i| s.xyz[i].map(|v| v as f64)).collect();
         let rgb: Option<Vec<[u16; 3]>> =
             s.rgb.as_ref().map(|c| idx.iter().map(|&i| c[i]).collect());
+        if std::env::var_os("MULTICUE_ONLY").is_some() {
+            continue;
+        }
         let t = Instant::now();
         let rg = pool
             .install(|| segment_at(&pts, rgb.as_deref(), None, &sp, Some([0.0; 3])))
@@ -231,12 +244,14 @@ fn run(path: &Path, pool: &rayon::ThreadPool) {
         points,
         median(mc_rate.clone()) / 1e6,
         median(rg_rate.clone()) / 1e6,
-        median(mc_rate) / median(rg_rate).max(1e-9),
+        median(mc_rate) / median(rg_rate), // NaN without region growing (`MULTICUE_ONLY`)
         secs[0],
         secs[1],
         secs[2]
     );
-    println!("  integration: accepted per cue {accepted:?}, rejected {rejected}");
+    println!(
+        "  integration: accepted per cue {accepted:?}, rejected {rejected}; labels checksum {checksum:016x}"
+    );
     if integrated.reference > 0 {
         println!("  thesis counts at tolerance 0.8, summed over scans:");
         println!("{}", integrated.line("integrated"));
@@ -336,6 +351,9 @@ fn kitti(dir: &Path, pool: &rayon::ThreadPool) {
         let mc_s = t.elapsed().as_secs_f64();
         let labels = seg.point_labels(&img, xyz.len());
         let pts64: Vec<[f64; 3]> = xyz.iter().map(|p| p.map(|v| v as f64)).collect();
+        if std::env::var_os("MULTICUE_ONLY").is_some() {
+            continue;
+        }
         let t = Instant::now();
         let rg = pool
             .install(|| segment_at(&pts64, None, None, &sp, Some([0.0; 3])))

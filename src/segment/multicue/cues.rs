@@ -7,6 +7,7 @@
 //! differences stay on one surface ([`same_surface`]).
 
 use super::image::RangeImage;
+use super::meanshift::Jump;
 
 /// Largest half-window of the smoothing, pixels (near the sensor `D / ρΔ` grows without
 /// bound).
@@ -80,40 +81,87 @@ impl SurfaceTest {
     }
 }
 
-/// Unit normals per pixel (zero where none can be computed), oriented towards the sensor.
-/// `window_m` is the paper's `D`; `tan_theta` the surface test of [`same_surface`].
-pub fn normals(img: &RangeImage, window_m: f32, tan_theta: f32) -> Vec<[f32; 3]> {
-    let test = SurfaceTest::new(img, tan_theta, MAX_HALF);
-    let smooth = smoothed(img, window_m, &test);
-    let mut out = vec![[0.0f32; 3]; img.len()];
-    for r in 0..img.rows {
-        for c in 0..img.cols {
-            let i = r * img.cols + c;
-            if !img.valid(i) {
-                continue;
-            }
-            let diff = |dr: isize, dc: isize| -> Option<[f32; 3]> {
-                let along = |s: isize| {
-                    img.offset(r, c, dr * s, dc * s)
-                        .filter(|&j| img.valid(j) && test.holds(img.range[i], img.range[j], dr, dc))
-                };
-                // Central difference, else one-sided.
-                let (a, b) = match (along(1), along(-1)) {
-                    (Some(a), Some(b)) => (a, b),
-                    (Some(a), None) => (a, i),
-                    (None, Some(b)) => (i, b),
-                    (None, None) => return None,
-                };
-                Some(sub(smooth[a], smooth[b]))
-            };
-            if let (Some(v1), Some(v2)) = (diff(0, 1), diff(1, 0)) {
-                let n = cross(v1, v2);
-                let len = dot(n, n).sqrt();
-                if len > 1e-12 {
-                    let p = img.xyz[i];
-                    let s = if dot(n, p) > 0.0 { -1.0 } else { 1.0 };
-                    out[i] = n.map(|v| s * v / len);
+/// A neighbour link: the pixel and how many steps away it lies (1: adjacent; more across
+/// pixels without a return, [`RangeImage::across`]).
+pub type Link = Option<(u32, u8)>;
+
+/// The surface connectivity of one image, computed once and shared by everything that walks
+/// it (the normals' differences, each cue's grouping, the integration's regrouping): for each
+/// pixel with a return, its neighbour in each of the four directions
+/// ([`RangeImage::across`], across at most `max_gap_px` pixels without a return) when the two
+/// lie on one surface ([`SurfaceTest`]), else none. Each cue used to repeat the search and the
+/// test for every pixel pair.
+pub struct Links {
+    /// The surface test, tabulated far enough for the normals' smoothing too.
+    pub test: SurfaceTest,
+    /// Per pixel: right, left, down, up (the order the regrouping walks them).
+    around: Vec<[Link; 4]>,
+}
+
+impl Links {
+    /// The links of `img` under `jump`.
+    pub fn new(img: &RangeImage, jump: Jump) -> Self {
+        let test = SurfaceTest::new(img, jump.tan_theta, MAX_HALF.max(jump.max_gap_px + 1));
+        let mut around = vec![[None; 4]; img.len()];
+        for r in 0..img.rows {
+            for c in 0..img.cols {
+                let i = r * img.cols + c;
+                if !img.valid(i) {
+                    continue;
                 }
+                // Right and down; the link back (left, up) is the same pair: the first pixel
+                // with a return after `i` has `i` as its first one before, at the same
+                // distance, and the test is symmetric.
+                for (dr, dc, fwd, back) in [(0, 1, 0, 1), (1, 0, 2, 3)] {
+                    let Some((j, k)) = img.across(r, c, dr, dc, jump.max_gap_px) else {
+                        continue;
+                    };
+                    if test.holds(img.range[i], img.range[j], k * dr, k * dc) {
+                        around[i][fwd] = Some((j as u32, k as u8));
+                        around[j][back] = Some((i as u32, k as u8));
+                    }
+                }
+            }
+        }
+        Links { test, around }
+    }
+
+    /// The linked neighbours of pixel `i`: right, left, down, up.
+    #[inline]
+    pub fn around(&self, i: usize) -> [Link; 4] {
+        self.around[i]
+    }
+}
+
+/// Unit normals per pixel (zero where none can be computed), oriented towards the sensor.
+/// `window_m` is the paper's `D`; `links` hold the surface test ([`same_surface`]).
+pub fn normals(img: &RangeImage, window_m: f32, links: &Links) -> Vec<[f32; 3]> {
+    let smooth = smoothed(img, window_m, &links.test);
+    let mut out = vec![[0.0f32; 3]; img.len()];
+    // The adjacent neighbour on the same surface, if linked.
+    let adjacent = |l: Link| l.filter(|&(_, k)| k == 1).map(|(j, _)| j as usize);
+    for (i, o) in out.iter_mut().enumerate() {
+        if !img.valid(i) {
+            continue;
+        }
+        let [right, left, down, up] = links.around(i);
+        // Central difference, else one-sided.
+        let diff = |fwd: Link, back: Link| -> Option<[f32; 3]> {
+            let (a, b) = match (adjacent(fwd), adjacent(back)) {
+                (Some(a), Some(b)) => (a, b),
+                (Some(a), None) => (a, i),
+                (None, Some(b)) => (i, b),
+                (None, None) => return None,
+            };
+            Some(sub(smooth[a], smooth[b]))
+        };
+        if let (Some(v1), Some(v2)) = (diff(right, left), diff(down, up)) {
+            let n = cross(v1, v2);
+            let len = dot(n, n).sqrt();
+            if len > 1e-12 {
+                let p = img.xyz[i];
+                let s = if dot(n, p) > 0.0 { -1.0 } else { 1.0 };
+                *o = n.map(|v| s * v / len);
             }
         }
     }
@@ -121,7 +169,7 @@ pub fn normals(img: &RangeImage, window_m: f32, tan_theta: f32) -> Vec<[f32; 3]>
 }
 
 /// The range image's points after the adaptive Gaussian smoothing (σ = half the window).
-/// `test` must reach [`MAX_HALF`].
+/// `test` must reach [`MAX_HALF`] ([`Links::new`] tabulates that far).
 fn smoothed(img: &RangeImage, window_m: f32, test: &SurfaceTest) -> Vec<[f32; 3]> {
     let mut out = img.xyz.clone();
     if window_m <= 0.0 {
@@ -214,7 +262,11 @@ mod tests {
         let img =
             RangeImage::organised(rows, cols, &pts, None, super::super::image::Order::RowMajor)
                 .unwrap();
-        let n = normals(&img, 0.3, 3f32.to_radians().tan());
+        let jump = Jump {
+            tan_theta: 3f32.to_radians().tan(),
+            max_gap_px: 0,
+        };
+        let n = normals(&img, 0.3, &Links::new(&img, jump));
         // [good, all] for ground and wall pixels; a pixel next to where the two surfaces
         // meet may average both. Ground seen at less than the 3° of the surface test (beyond
         // ~38 m from a sensor 2 m up) has no neighbouring ring on its surface.
@@ -326,12 +378,72 @@ mod tests {
             let bits = |v: Vec<[f32; 3]>| -> Vec<[u32; 3]> {
                 v.iter().map(|x| x.map(f32::to_bits)).collect()
             };
-            let got = normals(&img, window_m, t);
-            assert!(got.iter().filter(|n| **n != [0.0; 3]).count() > rows * cols / 3);
+            // Links across gaps give the same normals: the differences take adjacent
+            // neighbours only.
+            for max_gap_px in [0, 1, 2] {
+                let jump = Jump {
+                    tan_theta: t,
+                    max_gap_px,
+                };
+                let got = normals(&img, window_m, &Links::new(&img, jump));
+                assert!(got.iter().filter(|n| **n != [0.0; 3]).count() > rows * cols / 3);
+                assert_eq!(
+                    bits(got),
+                    bits(normals_reference(&img, window_m, t)),
+                    "window {window_m} m, {deg}°, gap {max_gap_px}"
+                );
+            }
+        }
+    }
+
+    /// Every link is the neighbour `across` finds in its direction when the surface test
+    /// holds for the pair, and none otherwise: the links back (left, up) included, across the
+    /// seam and across gaps.
+    #[test]
+    fn links_are_the_searched_and_tested_neighbours_in_all_four_directions() {
+        let (rows, cols) = (16, 360);
+        let mut pts = plane_and_wall(rows, cols);
+        let mut rng = crate::rng::Rng(4);
+        for p in pts.iter_mut() {
+            if rng.u() < 0.15 {
+                *p = [f32::NAN; 3];
+            } else if rng.u() < 0.1 {
+                *p = p.map(|v| 0.7 * v);
+            }
+        }
+        let img =
+            RangeImage::organised(rows, cols, &pts, None, super::super::image::Order::RowMajor)
+                .unwrap();
+        assert!(img.wraps);
+        for max_gap_px in [0, 1, 2] {
+            let jump = Jump {
+                tan_theta: 3f32.to_radians().tan(),
+                max_gap_px,
+            };
+            let links = Links::new(&img, jump);
+            let (mut linked, mut gaps) = (0, 0);
+            for i in 0..img.len() {
+                let (r, c) = (i / cols, i % cols);
+                let dirs = [(0, 1), (0, -1), (1, 0), (-1, 0)];
+                for (l, (dr, dc)) in links.around(i).into_iter().zip(dirs) {
+                    let want = img
+                        .across(r, c, dr, dc, max_gap_px)
+                        .filter(|_| img.valid(i))
+                        .filter(|&(j, k)| {
+                            let alpha = img.step(k * dr, k * dc);
+                            same_surface(img.range[i], img.range[j], alpha, jump.tan_theta)
+                        })
+                        .map(|(j, k)| (j as u32, k as u8));
+                    assert_eq!(l, want, "pixel {i}, direction {dr} {dc}, gap {max_gap_px}");
+                    linked += usize::from(l.is_some());
+                    gaps += usize::from(l.is_some_and(|(_, k)| k > 1));
+                }
+            }
+            assert!(linked > img.len(), "gap {max_gap_px}: {linked} links");
             assert_eq!(
-                bits(got),
-                bits(normals_reference(&img, window_m, t)),
-                "window {window_m} m, {deg}°"
+                gaps > 0,
+                max_gap_px > 0,
+                "gap {max_gap_px}: {gaps} across gaps"
             );
         }
     }

@@ -14,9 +14,8 @@
 
 use std::collections::BinaryHeap;
 
-use super::cues::SurfaceTest;
+use super::cues::Links;
 use super::image::RangeImage;
-use super::meanshift::Jump;
 
 /// One cue's segmentation as the integration takes it.
 pub struct CueSegments<'a> {
@@ -84,7 +83,7 @@ pub fn integrate(
     img: &RangeImage,
     cues: &mut [CueSegments],
     rules: Rules,
-    jump: Jump,
+    links: &Links,
 ) -> Integrated {
     let n = img.len();
     let mut owner = vec![0u32; n];
@@ -123,7 +122,6 @@ pub fn integrate(
     };
     let mut stamp = vec![0u32; n];
     let mut stamp_now = 0u32;
-    let test = SurfaceTest::new(img, jump.tan_theta, jump.max_gap_px + 1);
     while let Some(c) = heap.pop() {
         if c.coverage < rules.min_coverage {
             break;
@@ -141,7 +139,7 @@ pub fn integrate(
             for &p in &left {
                 stamp[p as usize] = stamp_now;
             }
-            for piece in pieces(img, &left, (&mut stamp, stamp_now), &test, jump) {
+            for piece in pieces(&left, (&mut stamp, stamp_now), links) {
                 let id = members[c.cue].len() as u32;
                 for &p in &piece {
                     cues[c.cue].labels[p as usize] = id;
@@ -201,15 +199,9 @@ fn dispersion(values: &[f32], dim: usize, px: &[u32]) -> f32 {
     (ss / n).sqrt() as f32
 }
 
-/// Connected pieces (4-neighbours on one surface) of the pixels stamped `now`; each piece's
+/// Connected pieces (linked neighbours, [`Links`]) of the pixels stamped `now`; each piece's
 /// pixels in ascending order, pieces by first pixel.
-fn pieces(
-    img: &RangeImage,
-    px: &[u32],
-    (stamp, now): (&mut [u32], u32),
-    test: &SurfaceTest,
-    jump: Jump,
-) -> Vec<Vec<u32>> {
+fn pieces(px: &[u32], (stamp, now): (&mut [u32], u32), links: &Links) -> Vec<Vec<u32>> {
     let mut out = Vec::new();
     let mut stack = Vec::new();
     for &start in px {
@@ -220,14 +212,12 @@ fn pieces(
         let mut piece = vec![start];
         stack.push(start as usize);
         while let Some(i) = stack.pop() {
-            let (r, c) = (i / img.cols, i % img.cols);
-            for (dr, dc) in [(0, 1), (0, -1), (1, 0), (-1, 0)] {
-                if let Some((j, k)) = img.across(r, c, dr, dc, jump.max_gap_px) {
-                    if stamp[j] == now && test.holds(img.range[i], img.range[j], k * dr, k * dc) {
-                        stamp[j] = 0;
-                        piece.push(j as u32);
-                        stack.push(j);
-                    }
+            for (j, _) in links.around(i).into_iter().flatten() {
+                let j = j as usize;
+                if stamp[j] == now {
+                    stamp[j] = 0;
+                    piece.push(j as u32);
+                    stack.push(j);
                 }
             }
         }
@@ -278,7 +268,7 @@ mod tests {
             min_pixels: 2,
         };
         let jump = STRICT;
-        let out = integrate(&img, &mut cues, rules, jump);
+        let out = integrate(&img, &mut cues, rules, &Links::new(&img, jump));
         assert_eq!(out.segments, 2);
         assert_eq!(out.rejected, 1);
         assert!(out.regrouped >= 1);
@@ -300,7 +290,7 @@ mod tests {
             min_coverage: 25.0,
             min_pixels: 1,
         };
-        let out = integrate(&img, &mut cues, rules, STRICT);
+        let out = integrate(&img, &mut cues, rules, &Links::new(&img, STRICT));
         assert_eq!(out.segments, 1);
         assert_eq!(out.labels, vec![1, 1, 1, 1, 0, 0, 0, 0]);
     }
@@ -326,7 +316,7 @@ mod tests {
                 min_coverage: 1.0,
                 min_pixels: 2,
             };
-            integrate(&img, &mut cues, rules, STRICT)
+            integrate(&img, &mut cues, rules, &Links::new(&img, STRICT))
         };
         // As the paper: the plane is accepted whole, the colours' segments lose their pixels.
         let paper = run(false);

@@ -19,7 +19,7 @@
 
 use rayon::prelude::*;
 
-use super::cues::SurfaceTest;
+use super::cues::Links;
 use super::image::RangeImage;
 
 /// Kernel sizes and stopping rule of one cue's mean shift.
@@ -228,33 +228,25 @@ fn shift_window<const D: usize>(
 }
 
 /// Segments of one cue: label per pixel (0 where not usable), numbered 1.. by first pixel.
+/// Linked pixels ([`Links`]: neighbours on one surface) whose filtered values lie within
+/// `merge · hr` join.
 pub fn group<const D: usize>(
-    img: &RangeImage,
     filtered: &[[f32; D]],
     usable: &[bool],
     k: Kernel,
-    jump: Jump,
+    links: &Links,
 ) -> (Vec<u32>, u32) {
     let lim = (k.merge * k.hr) * (k.merge * k.hr);
-    let test = SurfaceTest::new(img, jump.tan_theta, jump.max_gap_px + 1);
-    let n = img.len();
-    let mut uf = UnionFind::new(n);
-    for r in 0..img.rows {
-        for c in 0..img.cols {
-            let i = r * img.cols + c;
-            if !usable[i] {
-                continue;
-            }
-            for (dr, dc) in [(0, 1), (1, 0)] {
-                let Some((j, k)) = img.across(r, c, dr, dc, jump.max_gap_px) else {
-                    continue;
-                };
-                if usable[j]
-                    && test.holds(img.range[i], img.range[j], k * dr, k * dc)
-                    && d2(&filtered[i], &filtered[j]) < lim
-                {
-                    uf.union(i, j);
-                }
+    let mut uf = UnionFind::new(filtered.len());
+    for (i, &u) in usable.iter().enumerate() {
+        if !u {
+            continue;
+        }
+        let [right, _, down, _] = links.around(i);
+        for (j, _) in [right, down].into_iter().flatten() {
+            let j = j as usize;
+            if usable[j] && d2(&filtered[i], &filtered[j]) < lim {
+                uf.union(i, j);
             }
         }
     }
@@ -491,7 +483,7 @@ mod tests {
         };
         let f = filter(&img, &v, &usable, k);
         let jump = STRICT;
-        let (lab, n) = group(&img, &f, &usable, k, jump);
+        let (lab, n) = group(&f, &usable, k, &Links::new(&img, jump));
         assert_eq!(n, 2, "{lab:?}");
         assert!(lab[..cols / 2].iter().all(|&l| l == 1));
         assert!(lab[cols / 2..cols].iter().all(|&l| l == 2));
@@ -521,7 +513,7 @@ mod tests {
             basin_rows: 0,
         };
         let f = filter(&img, &v, &usable, k);
-        let (lab, n) = group(&img, &f, &usable, k, STRICT);
+        let (lab, n) = group(&f, &usable, k, &Links::new(&img, STRICT));
         assert_eq!(n, 3);
         assert_eq!(lab[0], 0);
         assert_eq!(lab[1], 1);
@@ -565,7 +557,7 @@ mod tests {
                 max_gap_px,
                 ..STRICT
             };
-            group(&img, &f, &usable, k, jump)
+            group(&f, &usable, k, &Links::new(&img, jump))
         };
         let (strict, n) = run(0);
         assert_eq!(n, 4, "{strict:?}");

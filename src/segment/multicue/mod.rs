@@ -216,7 +216,7 @@ pub struct ScanSegmentation {
     pub cue_labels: Vec<(Cue, Vec<u32>)>,
     /// Integration figures.
     pub integrated: Integrated,
-    /// Seconds: cues (normals), mean shift (all cues), integration.
+    /// Seconds: cues (neighbour links, normals), mean shift (all cues), integration.
     pub seconds: [f64; 3],
 }
 
@@ -245,6 +245,7 @@ pub fn segment_scan(img: &RangeImage, p: &MulticueParams) -> ScanSegmentation {
     let n = img.len();
     let jump = p.jump();
     let t = Instant::now();
+    let links = cues::Links::new(img, jump);
     let valid: Vec<bool> = (0..n).map(|i| img.valid(i)).collect();
     let wanted: Vec<Cue> = p.cues.iter().filter_map(|c| Cue::parse(c)).collect();
     let mut flat: Vec<CueInput> = Vec::new();
@@ -271,7 +272,7 @@ pub fn segment_scan(img: &RangeImage, p: &MulticueParams) -> ScanSegmentation {
                 veto: false,
             }),
             Cue::Normals => {
-                let nrm = cues::normals(img, p.smooth_window_m, jump.tan_theta);
+                let nrm = cues::normals(img, p.smooth_window_m, &links);
                 let usable = nrm.iter().map(|v| *v != [0.0; 3]).collect();
                 flat.push(CueInput {
                     cue,
@@ -303,8 +304,8 @@ pub fn segment_scan(img: &RangeImage, p: &MulticueParams) -> ScanSegmentation {
     let labels: Vec<Vec<u32>> = flat
         .iter()
         .map(|c| match c.dim {
-            1 => shift::<1>(img, &c.values, &c.usable, c.kernel, jump),
-            _ => shift::<3>(img, &c.values, &c.usable, c.kernel, jump),
+            1 => shift::<1>(img, &c.values, &c.usable, c.kernel, &links),
+            _ => shift::<3>(img, &c.values, &c.usable, c.kernel, &links),
         })
         .collect();
     let t_shift = t.elapsed().as_secs_f64();
@@ -324,7 +325,7 @@ pub fn segment_scan(img: &RangeImage, p: &MulticueParams) -> ScanSegmentation {
         min_coverage: p.min_coverage_m,
         min_pixels: p.min_points,
     };
-    let mut integrated = integrate::integrate(img, &mut segs, rules, jump);
+    let mut integrated = integrate::integrate(img, &mut segs, rules, &links);
     let t_int = t.elapsed().as_secs_f64();
     let pixel_labels = std::mem::take(&mut integrated.labels);
     ScanSegmentation {
@@ -342,14 +343,14 @@ fn shift<const D: usize>(
     flat: &[f32],
     usable: &[bool],
     k: Kernel,
-    jump: Jump,
+    links: &cues::Links,
 ) -> Vec<u32> {
     let v: Vec<[f32; D]> = flat
         .chunks_exact(D)
         .map(|c| std::array::from_fn(|i| c[i]))
         .collect();
     let f = meanshift::filter(img, &v, usable, k);
-    meanshift::group(img, &f, usable, k, jump).0
+    meanshift::group(&f, usable, k, links).0
 }
 
 /// A single cue's segmentation as a result of its own: its segments with at least
