@@ -7,7 +7,6 @@
 //! differences stay on one surface ([`same_surface`]).
 
 use super::image::RangeImage;
-use super::meanshift::Jump;
 
 /// Largest half-window of the smoothing, pixels (near the sensor `D / ρΔ` grows without
 /// bound).
@@ -79,6 +78,16 @@ impl SurfaceTest {
         };
         same_surface_cs(a, b, cs, self.tan_theta)
     }
+}
+
+/// Surface connectivity between neighbouring pixels ([`same_surface`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Jump {
+    /// tan θ: the smallest angle between a beam and the line to its neighbour's return.
+    pub tan_theta: f32,
+    /// Pixels without a return that neighbouring returns may lie across
+    /// ([`RangeImage::across`]).
+    pub max_gap_px: usize,
 }
 
 /// A neighbour link: the pixel and how many steps away it lies (1: adjacent; more across

@@ -405,8 +405,8 @@ pub(crate) mod tests {
 
     /// The surface test of the unit tests: tan θ = 0.1 and the paper's 4-neighbours (no gap
     /// bridging).
-    pub(crate) const STRICT: crate::segment::multicue::meanshift::Jump =
-        crate::segment::multicue::meanshift::Jump {
+    pub(crate) const STRICT: crate::segment::multicue::cues::Jump =
+        crate::segment::multicue::cues::Jump {
             tan_theta: 0.1,
             max_gap_px: 0,
         };

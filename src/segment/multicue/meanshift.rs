@@ -42,16 +42,6 @@ pub struct Kernel {
     pub merge: f32,
 }
 
-/// Surface connectivity between neighbouring pixels ([`super::cues::same_surface`]).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Jump {
-    /// tan θ: the smallest angle between a beam and the line to its neighbour's return.
-    pub tan_theta: f32,
-    /// Pixels without a return that neighbouring returns may lie across
-    /// ([`super::image::RangeImage::across`]).
-    pub max_gap_px: usize,
-}
-
 #[inline]
 fn d2<const D: usize>(a: &[f32; D], b: &[f32; D]) -> f32 {
     let mut s = 0.0;
@@ -303,6 +293,7 @@ impl UnionFind {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::segment::multicue::cues::Jump;
 
     use crate::segment::multicue::image::tests::{flat_image, STRICT};
 

@@ -26,9 +26,10 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 
 pub use crate::model::ScanPoints;
+use cues::Jump;
 pub use image::{ImageError, Order, RangeImage, Rings};
 use integrate::{CueSegments, Integrated, Rules};
-use meanshift::{Jump, Kernel};
+use meanshift::Kernel;
 
 /// Parameters of the multi-cue segmentation.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
