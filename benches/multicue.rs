@@ -34,7 +34,7 @@ use tessera::io::mcap::reader::McapSource;
 use tessera::io::mcap::wire::Encoding;
 use tessera::segment::features::{rgb_to_lab, LabFormula};
 use tessera::segment::multicue::{
-    segment_scan, single_cue_labels, MulticueParams, Order, RangeImage, Rings,
+    segment_scan, without_small_segments, MulticueParams, Order, RangeImage, Rings,
 };
 use tessera::segment::{segment_at, SegParams};
 
@@ -210,15 +210,7 @@ fn run(path: &Path, pool: &rayon::ThreadPool) {
         rg_rate.push(valid as f64 / t.elapsed().as_secs_f64());
         if let Some(truth) = &s.truth {
             let mut t: Vec<u32> = idx.iter().map(|&i| truth[i]).collect();
-            let mut size = std::collections::HashMap::new();
-            for &l in &t {
-                *size.entry(l).or_insert(0usize) += 1;
-            }
-            for l in t.iter_mut() {
-                if size[l] < p.min_points {
-                    *l = 0;
-                }
-            }
+            without_small_segments(&mut t, p.min_points);
             let labels = seg.point_labels(&img, s.xyz.len());
             let pick = |l: &[u32]| -> Vec<u32> { idx.iter().map(|&i| l[i]).collect() };
             integrated.add(&t, &pick(&labels));
@@ -231,9 +223,9 @@ fn run(path: &Path, pool: &rayon::ThreadPool) {
                     .map(|c| format!("{:?}", c.0))
                     .collect();
             }
-            for (k, (_, cl)) in seg.cue_labels.iter().enumerate() {
-                let single = img.to_points(&single_cue_labels(cl, p.min_points), s.xyz.len());
-                cues[k].add(&t, &pick(&single));
+            let single = seg.cue_point_labels(&img, s.xyz.len(), p.min_points);
+            for (c, labels) in cues.iter_mut().zip(&single) {
+                c.add(&t, &pick(labels));
             }
         }
     }

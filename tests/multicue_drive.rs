@@ -187,7 +187,7 @@ impl PerScan {
 fn per_scan_integration_beats_each_cue_and_region_growing() {
     use tessera::segment::features::{rgb_to_lab, LabFormula};
     use tessera::segment::multicue::{
-        segment_scan, single_cue_labels, MulticueParams, Order, RangeImage,
+        segment_scan, without_small_segments, MulticueParams, Order, RangeImage,
     };
     let p = LidarParams {
         scene: SceneParams {
@@ -225,20 +225,13 @@ fn per_scan_integration_beats_each_cue_and_region_growing() {
         let in_image = img.to_points(&vec![1; img.len()], xyz.len());
         let idx: Vec<usize> = (0..xyz.len()).filter(|&i| in_image[i] == 1).collect();
         let mut truth: Vec<u32> = idx.iter().map(|&i| rev.beams[i].unwrap().segment).collect();
-        let mut size = std::collections::HashMap::new();
-        for &l in &truth {
-            *size.entry(l).or_insert(0usize) += 1;
-        }
-        truth
-            .iter_mut()
-            .filter(|l| size[*l] < mp.min_points)
-            .for_each(|l| *l = 0);
+        without_small_segments(&mut truth, mp.min_points);
         let pick = |l: &[u32]| -> Vec<u32> { idx.iter().map(|&i| l[i]).collect() };
         integrated.add(&truth, &pick(&seg.point_labels(&img, xyz.len())));
-        cues.resize_with(seg.cue_labels.len(), PerScan::default);
-        for (c, (_, labels)) in cues.iter_mut().zip(&seg.cue_labels) {
-            let single = img.to_points(&single_cue_labels(labels, mp.min_points), xyz.len());
-            c.add(&truth, &pick(&single));
+        let single = seg.cue_point_labels(&img, xyz.len(), mp.min_points);
+        cues.resize_with(single.len(), PerScan::default);
+        for (c, labels) in cues.iter_mut().zip(&single) {
+            c.add(&truth, &pick(labels));
         }
         let pts: Vec<[f64; 3]> = idx.iter().map(|&i| xyz[i].map(f64::from)).collect();
         let rgb16: Vec<[u16; 3]> = idx.iter().map(|&i| rgb[i].map(u16::from)).collect();

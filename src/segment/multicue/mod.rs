@@ -226,6 +226,30 @@ impl ScanSegmentation {
     pub fn point_labels(&self, img: &RangeImage, n: usize) -> Vec<u32> {
         img.to_points(&self.pixel_labels, n)
     }
+    /// Each cue's own segmentation per input point ([`single_cue_labels`] with `min_points`),
+    /// in the order of [`ScanSegmentation::cue_labels`]: what a cue alone would give, for
+    /// comparing the integration with it.
+    pub fn cue_point_labels(&self, img: &RangeImage, n: usize, min_points: usize) -> Vec<Vec<u32>> {
+        self.cue_labels
+            .iter()
+            .map(|(_, l)| img.to_points(&single_cue_labels(l, min_points), n))
+            .collect()
+    }
+}
+
+/// Per-scan scoring against reference segments: reference segments with fewer than
+/// `min_points` returns in the scan set to 0 (unlabelled) — no method can find them there, as
+/// no segment smaller than that is kept.
+pub fn without_small_segments(truth: &mut [u32], min_points: usize) {
+    let mut size = std::collections::HashMap::new();
+    for &l in truth.iter() {
+        *size.entry(l).or_insert(0usize) += 1;
+    }
+    for l in truth.iter_mut() {
+        if size[l] < min_points {
+            *l = 0;
+        }
+    }
 }
 
 /// One cue as the mean shift and the integration take it.
