@@ -64,6 +64,18 @@ impl SurfaceTest {
         }
     }
 
+    /// The table's cosines and sines for `dr` rows and `-half..=half` columns apart, when it
+    /// reaches that far.
+    #[inline]
+    fn row(&self, dr: isize, half: isize) -> Option<&[[f32; 2]]> {
+        if dr.abs() > self.reach || half > self.reach {
+            return None;
+        }
+        let w = 2 * self.reach + 1;
+        let at = ((dr + self.reach) * w + self.reach - half) as usize;
+        Some(&self.cs[at..=at + 2 * half as usize])
+    }
+
     /// Whether returns at ranges `a` and `b`, `dr` rows and `dc` columns apart, lie on one
     /// surface ([`same_surface`]).
     #[inline]
@@ -219,21 +231,43 @@ fn smoothed(img: &RangeImage, window_m: f32, test: &SurfaceTest) -> Vec<[f32; 3]
             }
             let kernel = &weights[hr * (MAX_HALF + 1) + hc];
             let (mut acc, mut wsum) = ([0.0f32; 3], 0.0f32);
+            let mut add = |w: f32, p: [f32; 3]| {
+                for k in 0..3 {
+                    acc[k] += w * p[k];
+                }
+                wsum += w;
+            };
+            let hc = hc as isize;
             for dr in -(hr as isize)..=hr as isize {
-                for dc in -(hc as isize)..=hc as isize {
+                let rr = r as isize + dr;
+                if rr < 0 || rr >= img.rows as isize {
+                    continue;
+                }
+                // This row of the kernel, the test's table and the image, dc = -hc..=hc.
+                let k0 = (dr + MAX_HALF as isize) as usize * side + MAX_HALF - hc as usize;
+                let weights = &kernel[k0..=k0 + 2 * hc as usize];
+                let (c0, c1) = (c as isize - hc, c as isize + hc);
+                if let (true, Some(cs)) = (c0 >= 0 && c1 < img.cols as isize, test.row(dr, hc)) {
+                    // The window's row lies inside the image: one run of pixels, the same
+                    // pixels in the same order as below, so the same sums.
+                    let run =
+                        rr as usize * img.cols + c0 as usize..=rr as usize * img.cols + c1 as usize;
+                    let cells = img.range[run.clone()].iter().zip(&img.xyz[run]);
+                    for (((&rj, &p), &cs), &w) in cells.zip(cs).zip(weights) {
+                        // `valid`: a return, then the surface test.
+                        if rj > 0.0 && same_surface_cs(rho, rj, cs, test.tan_theta) {
+                            add(w, p);
+                        }
+                    }
+                    continue;
+                }
+                for (dc, &w) in (-hc..=hc).zip(weights) {
                     let Some(j) = img.offset(r, c, dr, dc) else {
                         continue;
                     };
-                    if !img.valid(j) || !test.holds(rho, img.range[j], dr, dc) {
-                        continue;
+                    if img.valid(j) && test.holds(rho, img.range[j], dr, dc) {
+                        add(w, img.xyz[j]);
                     }
-                    let w = kernel[(dr + MAX_HALF as isize) as usize * side
-                        + (dc + MAX_HALF as isize) as usize];
-                    let p = img.xyz[j];
-                    for k in 0..3 {
-                        acc[k] += w * p[k];
-                    }
-                    wsum += w;
                 }
             }
             out[i] = acc.map(|v| v / wsum);
