@@ -296,11 +296,11 @@ impl RangeImage {
         Ok((img, collisions))
     }
 
-    /// Mean elevation step between consecutive rings, from the rows' median elevations;
-    /// falls back to the column step when fewer than two rows hold returns.
+    /// Mean elevation step between consecutive rings, from the median elevations of the first
+    /// and the last row with returns; falls back to the column step when fewer than two rows
+    /// hold returns.
     fn measured_row_step(&self) -> f32 {
-        let mut per_row = Vec::new();
-        for r in 0..self.rows {
+        let median = |r: usize| -> Option<f32> {
             let mut e: Vec<f32> = (0..self.cols)
                 .map(|c| r * self.cols + c)
                 .filter(|&i| self.valid(i))
@@ -309,14 +309,18 @@ impl RangeImage {
                     p[2].atan2(p[0].hypot(p[1]))
                 })
                 .collect();
-            if !e.is_empty() {
-                let m = e.len() / 2;
-                e.select_nth_unstable_by(m, f32::total_cmp);
-                per_row.push((r, e[m]));
+            if e.is_empty() {
+                return None;
             }
-        }
-        match (per_row.first(), per_row.last()) {
-            (Some(&(r0, e0)), Some(&(r1, e1))) if r1 > r0 => (e0 - e1).abs() / (r1 - r0) as f32,
+            let m = e.len() / 2;
+            e.select_nth_unstable_by(m, f32::total_cmp);
+            Some(e[m])
+        };
+        // Only these two rows count (the rows between were measured once and never used).
+        let first = (0..self.rows).find_map(|r| median(r).map(|e| (r, e)));
+        let last = (0..self.rows).rev().find_map(|r| median(r).map(|e| (r, e)));
+        match (first, last) {
+            (Some((r0, e0)), Some((r1, e1))) if r1 > r0 => (e0 - e1).abs() / (r1 - r0) as f32,
             _ => self.col_step,
         }
     }
