@@ -413,15 +413,11 @@ pub const SPHERICAL_COLS: usize = 2048;
 /// number of segments.
 pub fn segment_points(s: ScanPoints, p: &MulticueParams) -> Result<(Vec<u32>, u32), ImageError> {
     let n = s.xyz.len();
+    // sRGB's transfer function from a table (the same values as `rgb_to_lab` of the colour
+    // over 65535, bit for bit; three `powf` a point were about as costly as the segmentation).
     let lab: Option<Vec<[f32; 3]>> = s.rgb.map(|c| {
         c.iter()
-            .map(|v| {
-                let lab = crate::segment::features::rgb_to_lab(
-                    v.map(|x| x as f64 / 65535.0),
-                    crate::segment::features::LabFormula::Srgb,
-                );
-                lab.map(|x| x as f32)
-            })
+            .map(|&v| crate::segment::features::rgb16_to_lab(v, false).map(|x| x as f32))
             .collect()
     });
     let img = if s.rows > 1 {
