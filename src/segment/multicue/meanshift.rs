@@ -42,6 +42,14 @@ pub struct Kernel {
     pub merge: f32,
 }
 
+/// Whether a squared distance lies within the window's squared bandwidth. Not `d < hr2`: a NaN
+/// distance is taken, as it always was (the filter's output stays bit for bit the same).
+#[inline(always)]
+#[allow(clippy::neg_cmp_op_on_partial_ord)]
+fn within(d: f32, hr2: f32) -> bool {
+    !(d >= hr2)
+}
+
 #[inline]
 fn d2<const D: usize>(a: &[f32; D], b: &[f32; D]) -> f32 {
     let mut s = 0.0;
@@ -80,21 +88,27 @@ pub fn filter<const D: usize>(
                     if !usable[i] || taken[lr * cols + c] {
                         continue;
                     }
-                    let y = window(img, values, usable, k, (r, c), &mut path);
+                    let (y, ext) = window(img, values, usable, k, (r, c), &mut path);
                     chunk[lr * cols + c] = y;
                     if k.basin == 0 {
                         continue;
                     }
                     // Pixels not filtered yet: later in this row, or in the band's rows below
-                    // (at most `basin_rows` down), up to `basin` columns either side.
+                    // (at most `basin_rows` down), up to `basin` columns either side. Only
+                    // those within a pixel of the path's extent can pass: a whole offset
+                    // within 1 of a centre offset lies within 1 of its rounding.
                     let last_row = (lr + k.basin_rows).min(band_rows - 1);
-                    for lr2 in lr..=last_row {
+                    let rows =
+                        lr.max(reach(lr, ext[0] - 1))..(last_row + 1).min(reach(lr, ext[1] + 2));
+                    for lr2 in rows {
                         let from = if lr2 == lr {
                             c + 1
                         } else {
                             c.saturating_sub(k.basin)
                         };
-                        for c2 in from..=(c + k.basin).min(cols - 1) {
+                        let cols2 = from.max(reach(c, ext[2] - 1))
+                            ..(c + k.basin + 1).min(cols).min(reach(c, ext[3] + 2));
+                        for c2 in cols2 {
                             let at = lr2 * cols + c2;
                             let j = b * band * cols + at;
                             if !usable[j] || taken[at] {
@@ -118,9 +132,10 @@ pub fn filter<const D: usize>(
     out
 }
 
-/// The mean shift of the window started at pixel `(r, c)` with its own value: where it ends.
-/// With basins (`k.basin > 0`), `path` is left holding each value and centre offset (pixels,
-/// from `(r, c)`) the window had, its end included.
+/// The mean shift of the window started at pixel `(r, c)` with its own value: where it ends,
+/// and the extent of the rounded centre offsets it had (rows min and max, columns min and
+/// max). With basins (`k.basin > 0`), `path` is left holding each value and centre offset
+/// (pixels, from `(r, c)`) the window had, its end included.
 fn window<const D: usize>(
     img: &RangeImage,
     values: &[[f32; D]],
@@ -128,69 +143,142 @@ fn window<const D: usize>(
     k: Kernel,
     (r, c): (usize, usize),
     path: &mut Vec<([f32; D], f32, f32)>,
-) -> [f32; D] {
+) -> ([f32; D], [isize; 4]) {
     let hr2 = k.hr * k.hr;
     let stop_v = (0.01 * k.hr) * (0.01 * k.hr);
     let hs = k.hs as isize;
+    let side = 2 * k.hs + 1;
     let (rows, cols) = (img.rows as isize, img.cols as isize);
     let mut y = values[r * img.cols + c];
     // Window centre as an offset from the pixel, in pixels.
     let (mut yr, mut yc) = (0.0f32, 0.0f32);
     path.clear();
+    let mut ext = [isize::MAX, isize::MIN, isize::MAX, isize::MIN];
     for _ in 0..k.max_iter {
         if k.basin > 0 {
             path.push((y, yr, yc));
         }
-        let (cr, cc) = (yr.round() as isize, yc.round() as isize);
+        let (cr, cc) = (round(yr), round(yc));
+        ext = extend(ext, (cr, cc));
         let mut acc = [0.0f32; D];
-        let (mut sr, mut sc, mut n) = (0.0f32, 0.0f32, 0u32);
-        let mut take = |v: &[f32; D], dr: isize, dc: isize| {
-            // Not `<`: a NaN distance is taken, as it always was.
-            let far = d2(v, &y) >= hr2;
-            if !far {
-                for t in 0..D {
-                    acc[t] += v[t];
-                }
-                sr += dr as f32;
-                sc += dc as f32;
-                n += 1;
-            }
-        };
+        // Offsets are whole pixels: their sums are kept as integers (exact, as the f32 sums
+        // of small integers were) and converted once.
+        let (mut sr, mut sc, mut n) = (0isize, 0isize, 0u32);
         let (r0, c0) = (r as isize + cr - hs, c as isize + cc - hs);
         let (r1, c1) = (r0 + 2 * hs, c0 + 2 * hs);
         if r0 >= 0 && c0 >= 0 && r1 < rows && c1 < cols {
             // The window lies inside the image: each of its rows is one run of pixels, read
             // without per-pixel bounds or wrap-around arithmetic. Same pixels in the same
-            // order as below, hence the same sums.
-            for rr in r0..=r1 {
-                let at = rr as usize * img.cols;
-                let run = at + c0 as usize..=at + c1 as usize;
-                let cells = values[run.clone()].iter().zip(&usable[run]);
-                for (t, (v, &u)) in cells.enumerate() {
-                    if u {
-                        take(v, rr - r as isize, c0 + t as isize - c as isize);
-                    }
-                }
-            }
+            // order as below, hence the same sums. The default windows' widths are
+            // constants here, so their runs are unrolled.
+            let at = r0 as usize * img.cols + c0 as usize;
+            let win = Window {
+                values,
+                usable,
+                cols: img.cols,
+                hr2,
+            };
+            let from = (r0 - r as isize, c0 - c as isize);
+            (acc, sr, sc, n) = match side {
+                3 => win.sums(at, 3, from, &y),
+                5 => win.sums(at, 5, from, &y),
+                _ => win.sums(at, side, from, &y),
+            };
         } else {
             for dr in cr - hs..=cr + hs {
                 for dc in cc - hs..=cc + hs {
                     if let Some(j) = img.offset(r, c, dr, dc) {
-                        if usable[j] {
-                            take(&values[j], dr, dc);
+                        if usable[j] && within(d2(&values[j], &y), hr2) {
+                            for q in 0..D {
+                                acc[q] += values[j][q];
+                            }
+                            sr += dr;
+                            sc += dc;
+                            n += 1;
                         }
                     }
                 }
             }
         }
-        if !shift_window(&mut y, (&mut yr, &mut yc), acc, (sr, sc, n), stop_v) {
+        let sums = (sr as f32, sc as f32, n);
+        if !shift_window(&mut y, (&mut yr, &mut yc), acc, sums, stop_v) {
             break;
         }
     }
     if k.basin > 0 {
         path.push((y, yr, yc));
+        ext = extend(ext, (round(yr), round(yc)));
     }
-    y
+    (y, ext)
+}
+
+/// `ext` (rows min and max, columns min and max) grown to take `(r, c)`.
+#[inline]
+fn extend(ext: [isize; 4], (r, c): (isize, isize)) -> [isize; 4] {
+    [ext[0].min(r), ext[1].max(r), ext[2].min(c), ext[3].max(c)]
+}
+
+/// A window's pixels inside the image, for [`window`].
+struct Window<'a, const D: usize> {
+    values: &'a [[f32; D]],
+    usable: &'a [bool],
+    cols: usize,
+    hr2: f32,
+}
+
+impl<const D: usize> Window<'_, D> {
+    /// Sums of the usable pixels whose values lie within the bandwidth of `y`, in the square
+    /// of `side` pixels whose top-left pixel is `at`, rows top to bottom, each left to
+    /// right: values, row and column offsets (`from` is the top-left's offset from the
+    /// window's pixel) and count.
+    #[inline(always)]
+    fn sums(
+        &self,
+        mut at: usize,
+        side: usize,
+        (dr0, dc0): (isize, isize),
+        y: &[f32; D],
+    ) -> ([f32; D], isize, isize, u32) {
+        let mut acc = [0.0f32; D];
+        let (mut sr, mut sc, mut n) = (0isize, 0isize, 0u32);
+        for dr in dr0..dr0 + side as isize {
+            let (vs, us) = (&self.values[at..at + side], &self.usable[at..at + side]);
+            for t in 0..side {
+                if us[t] && within(d2(&vs[t], y), self.hr2) {
+                    for q in 0..D {
+                        acc[q] += vs[t][q];
+                    }
+                    sr += dr;
+                    sc += dc0 + t as isize;
+                    n += 1;
+                }
+            }
+            at += self.cols;
+        }
+        (acc, sr, sc, n)
+    }
+}
+
+/// `at + d`, 0 when negative.
+#[inline]
+fn reach(at: usize, d: isize) -> usize {
+    (at as isize + d).max(0) as usize
+}
+
+/// `x.round()` (halves away from zero) for the window offsets (|x| at most a few pixels),
+/// without the library call `f32::round` is on x86-64's baseline instruction set: the
+/// truncation and its exact remainder decide.
+#[inline]
+fn round(x: f32) -> isize {
+    let t = x as isize;
+    let rest = x - t as f32;
+    if rest >= 0.5 {
+        t + 1
+    } else if rest <= -0.5 {
+        t - 1
+    } else {
+        t
+    }
 }
 
 /// Moves a window to the mean of the `n` pixels it took (value sums `acc`, offset sums `sr`,
@@ -298,7 +386,9 @@ mod tests {
     use crate::segment::multicue::image::tests::{flat_image, STRICT};
 
     /// The filter as first written: every window pixel through [`RangeImage::offset`] (the
-    /// window's move, [`shift_window`], is shared).
+    /// window's move, [`shift_window`], is shared); with basins, every pixel not filtered
+    /// yet that the rule names is checked against every value and centre of the window's
+    /// path.
     fn filter_reference<const D: usize>(
         img: &RangeImage,
         values: &[[f32; D]],
@@ -307,13 +397,17 @@ mod tests {
     ) -> Vec<[f32; D]> {
         let (hr2, stop_v, hs) = (k.hr * k.hr, (0.01 * k.hr) * (0.01 * k.hr), k.hs as isize);
         let mut out = values.to_vec();
-        for (i, o) in out.iter_mut().enumerate() {
+        let mut taken = vec![false; values.len()];
+        let band = 1 + if k.basin > 0 { k.basin_rows } else { 0 };
+        for i in 0..values.len() {
             let (r, c) = (i / img.cols, i % img.cols);
-            if !usable[i] {
+            if !usable[i] || taken[i] {
                 continue;
             }
             let (mut y, mut yr, mut yc) = (values[i], 0.0f32, 0.0f32);
+            let mut path = Vec::new();
             for _ in 0..k.max_iter {
+                path.push((y, yr, yc));
                 let (cr, cc) = (yr.round() as isize, yc.round() as isize);
                 let (mut acc, mut sr, mut sc, mut n) = ([0.0f32; D], 0.0f32, 0.0f32, 0u32);
                 for dr in cr - hs..=cr + hs {
@@ -332,9 +426,48 @@ mod tests {
                     break;
                 }
             }
-            *o = y;
+            path.push((y, yr, yc));
+            out[i] = y;
+            if k.basin == 0 {
+                continue;
+            }
+            let near = k.hr * k.hr * 0.25;
+            let last = (r + k.basin_rows)
+                .min(img.rows - 1)
+                .min(r - r % band + band - 1);
+            for r2 in r..=last {
+                for c2 in c.saturating_sub(k.basin)..=(c + k.basin).min(img.cols - 1) {
+                    let j = r2 * img.cols + c2;
+                    if (r2 == r && c2 <= c) || !usable[j] || taken[j] {
+                        continue;
+                    }
+                    let (dr, dc) = ((r2 - r) as f32, c2 as f32 - c as f32);
+                    if path.iter().any(|&(py, pr, pc)| {
+                        (dr - pr).abs() <= 1.0
+                            && (dc - pc).abs() <= 1.0
+                            && d2(&values[j], &py) < near
+                    }) {
+                        taken[j] = true;
+                        out[j] = y;
+                    }
+                }
+            }
         }
         out
+    }
+
+    #[test]
+    fn round_is_f32_round_for_window_offsets() {
+        // Halves, their neighbours one ulp away, and a dense sweep of offsets up to ±40 pixels.
+        let mut xs: Vec<f32> = (-80..=80).map(|h| h as f32 * 0.5).collect();
+        for &x in xs.clone().iter() {
+            xs.extend([x.next_up(), x.next_down()]);
+        }
+        xs.extend((-400_000..=400_000).map(|i| i as f32 * 1e-4));
+        xs.push(f32::NAN);
+        for x in xs {
+            assert_eq!(round(x), x.round() as isize, "x = {x:e}");
+        }
     }
 
     #[test]
@@ -353,22 +486,28 @@ mod tests {
         for wraps in [false, true] {
             let mut img = flat_image(rows, cols);
             img.wraps = wraps;
-            for hs in [1, 2, 4] {
+            // Window widths 3 and 5 (unrolled) and 9; the exact filter and basins reaching
+            // 1 or 3 columns and 0 to 2 rows down.
+            let basins = [(0, 0), (1, 0), (3, 1), (2, 2)];
+            for (hs, (basin, basin_rows)) in
+                [1, 2, 4].into_iter().flat_map(|h| basins.map(|b| (h, b)))
+            {
                 let k = Kernel {
                     hs,
                     hr: 1.5,
                     max_iter: 6,
                     merge: 0.5,
-                    basin: 0,
-                    basin_rows: 0,
+                    basin,
+                    basin_rows,
                 };
                 let got = filter(&img, &v, &usable, k);
                 let want = filter_reference(&img, &v, &usable, k);
                 let bits = |a: &[[f32; 3]]| -> Vec<[u32; 3]> {
                     a.iter().map(|x| x.map(f32::to_bits)).collect()
                 };
-                assert_eq!(bits(&got), bits(&want), "wraps {wraps}, hs {hs}");
-                assert!(got != v, "the filter moved nothing");
+                let at = format!("wraps {wraps}, hs {hs}, basin {basin}/{basin_rows}");
+                assert_eq!(bits(&got), bits(&want), "{at}");
+                assert!(got != v, "the filter moved nothing: {at}");
             }
         }
     }
