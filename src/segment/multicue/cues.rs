@@ -189,91 +189,115 @@ pub fn normals(img: &RangeImage, window_m: f32, links: &Links) -> Vec<[f32; 3]> 
     out
 }
 
-/// The range image's points after the adaptive Gaussian smoothing (σ = half the window).
-/// `test` must reach [`MAX_HALF`] ([`Links::new`] tabulates that far).
+/// The range image's points after the adaptive Gaussian smoothing (σ = half the window),
+/// applied as the Gaussian separates: along each row over `2 hc + 1` columns, then along each
+/// column of that result over `2 hr + 1` rows, the half-windows `hc`, `hr` from the pixel's
+/// own range (eq. 4). In both passes a neighbour counts only when it has a return on the
+/// pixel's surface ([`SurfaceTest`], against the pixel's own range), and each pass divides by
+/// the weights it took. Where every neighbour counts this is the full 2-D kernel; it costs
+/// `2 hc + 2 hr + 2` pixels instead of `(2 hc + 1)(2 hr + 1)` — near the sensor, where the
+/// windows reach 13 × 13 pixels, 26 instead of 169. `test` must reach [`MAX_HALF`]
+/// ([`Links::new`] tabulates that far).
 fn smoothed(img: &RangeImage, window_m: f32, test: &SurfaceTest) -> Vec<[f32; 3]> {
-    let mut out = img.xyz.clone();
     if window_m <= 0.0 {
-        return out;
+        return img.xyz.clone();
     }
     let half = |rho: f32, step: f32| -> usize {
         let d = window_m / (rho * step).max(1e-9);
         ((d * 0.5) as usize).min(MAX_HALF)
     };
-    // The kernel's weights for every pair of half-windows (hr, hc), offsets row-major: the
-    // same expression as per pixel, evaluated once.
+    // The kernel's weights for every half-window `h`, offsets -MAX_HALF..=MAX_HALF.
     let side = 2 * MAX_HALF + 1;
-    let weights: Vec<Vec<f32>> = (0..=MAX_HALF)
-        .flat_map(|hr| (0..=MAX_HALF).map(move |hc| (hr, hc)))
-        .map(|(hr, hc)| {
-            let (sr, sc) = ((hr as f32).max(0.5), (hc as f32).max(0.5));
-            let mut w = vec![0.0f32; side * side];
-            for dr in -(hr as isize)..=hr as isize {
-                for dc in -(hc as isize)..=hc as isize {
-                    let (fr, fc) = (dr as f32 / sr, dc as f32 / sc);
-                    w[(dr + MAX_HALF as isize) as usize * side
-                        + (dc + MAX_HALF as isize) as usize] = (-0.5 * (fr * fr + fc * fc)).exp();
+    let weights: Vec<f32> = (0..=MAX_HALF)
+        .flat_map(|h| {
+            let s = (h as f32).max(0.5);
+            (-(MAX_HALF as isize)..=MAX_HALF as isize).map(move |d| {
+                let f = d as f32 / s;
+                if d.unsigned_abs() <= h {
+                    (-0.5 * f * f).exp()
+                } else {
+                    0.0
                 }
-            }
-            w
+            })
         })
         .collect();
-    for r in 0..img.rows {
-        for c in 0..img.cols {
-            let i = r * img.cols + c;
-            if !img.valid(i) {
-                continue;
-            }
+    let kernel = |h: usize| &weights[h * side + MAX_HALF - h..=h * side + MAX_HALF + h];
+    let (rows, cols) = (img.rows, img.cols);
+    // Pass 1: along rows.
+    let mut along = img.xyz.clone();
+    for r in 0..rows {
+        for c in 0..cols {
+            let i = r * cols + c;
             let rho = img.range[i];
-            let (hr, hc) = (half(rho, img.row_step), half(rho, img.col_step));
-            if hr == 0 && hc == 0 {
+            if rho <= 0.0 {
                 continue;
             }
-            let kernel = &weights[hr * (MAX_HALF + 1) + hc];
+            let h = half(rho, img.col_step);
+            if h == 0 {
+                continue;
+            }
             let (mut acc, mut wsum) = ([0.0f32; 3], 0.0f32);
-            let mut add = |w: f32, p: [f32; 3]| {
-                for k in 0..3 {
-                    acc[k] += w * p[k];
-                }
-                wsum += w;
-            };
-            let hc = hc as isize;
-            for dr in -(hr as isize)..=hr as isize {
-                let rr = r as isize + dr;
-                if rr < 0 || rr >= img.rows as isize {
-                    continue;
-                }
-                // This row of the kernel, the test's table and the image, dc = -hc..=hc.
-                let k0 = (dr + MAX_HALF as isize) as usize * side + MAX_HALF - hc as usize;
-                let weights = &kernel[k0..=k0 + 2 * hc as usize];
-                let (c0, c1) = (c as isize - hc, c as isize + hc);
-                if let (true, Some(cs)) = (c0 >= 0 && c1 < img.cols as isize, test.row(dr, hc)) {
-                    // The window's row lies inside the image: one run of pixels, the same
-                    // pixels in the same order as below, so the same sums.
-                    let run =
-                        rr as usize * img.cols + c0 as usize..=rr as usize * img.cols + c1 as usize;
-                    let cells = img.range[run.clone()].iter().zip(&img.xyz[run]);
-                    for (((&rj, &p), &cs), &w) in cells.zip(cs).zip(weights) {
-                        // `valid`: a return, then the surface test.
-                        if rj > 0.0 && same_surface_cs(rho, rj, cs, test.tan_theta) {
-                            add(w, p);
-                        }
+            let hc = h as isize;
+            let w = kernel(h);
+            if let (true, Some(cs)) = (c >= h && c + h < cols, test.row(0, hc)) {
+                // The window lies inside the row: one run of pixels, the same pixels in the
+                // same order as below.
+                let run = i - h..=i + h;
+                let cells = img.range[run.clone()].iter().zip(&img.xyz[run]);
+                for (((&rj, p), &cs), &w) in cells.zip(cs).zip(w) {
+                    if rj > 0.0 && same_surface_cs(rho, rj, cs, test.tan_theta) {
+                        add(&mut acc, &mut wsum, w, *p);
                     }
-                    continue;
                 }
-                for (dc, &w) in (-hc..=hc).zip(weights) {
-                    let Some(j) = img.offset(r, c, dr, dc) else {
+            } else {
+                for (dc, &w) in (-hc..=hc).zip(w) {
+                    let Some(j) = img.offset(r, c, 0, dc) else {
                         continue;
                     };
-                    if img.valid(j) && test.holds(rho, img.range[j], dr, dc) {
-                        add(w, img.xyz[j]);
+                    if img.valid(j) && test.holds(rho, img.range[j], 0, dc) {
+                        add(&mut acc, &mut wsum, w, img.xyz[j]);
                     }
                 }
             }
-            out[i] = acc.map(|v| v / wsum);
+            along[i] = acc.map(|v| v / wsum);
         }
     }
+    // Pass 2: along columns, of the rows' result. Rows do not wrap.
+    let mut out = along.clone();
+    for (i, o) in out.iter_mut().enumerate() {
+        let rho = img.range[i];
+        if rho <= 0.0 {
+            continue;
+        }
+        let h = half(rho, img.row_step);
+        if h == 0 {
+            continue;
+        }
+        let r = i / cols;
+        let (mut acc, mut wsum) = ([0.0f32; 3], 0.0f32);
+        for (dr, &w) in (-(h as isize)..=h as isize).zip(kernel(h)) {
+            let rr = r as isize + dr;
+            if rr < 0 || rr >= rows as isize {
+                continue;
+            }
+            let j = (i as isize + dr * cols as isize) as usize;
+            let rj = img.range[j];
+            if rj > 0.0 && test.holds(rho, rj, dr, 0) {
+                add(&mut acc, &mut wsum, w, along[j]);
+            }
+        }
+        *o = acc.map(|v| v / wsum);
+    }
     out
+}
+
+/// `acc += w p`, `wsum += w`: one neighbour's share of a weighted mean.
+#[inline(always)]
+fn add(acc: &mut [f32; 3], wsum: &mut f32, w: f32, p: [f32; 3]) {
+    for (a, v) in acc.iter_mut().zip(p) {
+        *a += w * v;
+    }
+    *wsum += w;
 }
 
 #[inline]
@@ -331,24 +355,32 @@ mod tests {
         assert!(wall[0] * 100 >= wall[1] * 95, "{wall:?}");
     }
 
-    /// The normals as first written: the surface test's `cos` / `sin` and the kernel's `exp`
-    /// evaluated per pixel pair.
+    /// The normals written plainly: the surface test's `cos` / `sin` and the kernel's `exp`
+    /// evaluated per pixel pair, every neighbour through [`RangeImage::offset`]; the
+    /// smoothing along rows, then along columns of that.
     fn normals_reference(img: &RangeImage, window_m: f32, tan_theta: f32) -> Vec<[f32; 3]> {
-        let mut smooth = img.xyz.clone();
         let half = |rho: f32, step: f32| -> usize {
             ((window_m / (rho * step).max(1e-9) * 0.5) as usize).min(MAX_HALF)
         };
-        for (i, out) in smooth.iter_mut().enumerate() {
-            let (r, c) = (i / img.cols, i % img.cols);
-            let rho = img.range[i];
-            let (hr, hc) = (half(rho, img.row_step), half(rho, img.col_step));
-            if !img.valid(i) || (hr == 0 && hc == 0) {
-                continue;
-            }
-            let (sr, sc) = ((hr as f32).max(0.5), (hc as f32).max(0.5));
-            let (mut acc, mut wsum) = ([0.0f32; 3], 0.0f32);
-            for dr in -(hr as isize)..=hr as isize {
-                for dc in -(hc as isize)..=hc as isize {
+        // One pass of the smoothing of `src` along rows (`rows` true) or columns.
+        let pass = |src: &[[f32; 3]], along_rows: bool| -> Vec<[f32; 3]> {
+            let mut dst = src.to_vec();
+            for (i, out) in dst.iter_mut().enumerate() {
+                let (r, c) = (i / img.cols, i % img.cols);
+                let rho = img.range[i];
+                let step = if along_rows {
+                    img.col_step
+                } else {
+                    img.row_step
+                };
+                let h = half(rho, step);
+                if !img.valid(i) || h == 0 || window_m <= 0.0 {
+                    continue;
+                }
+                let s = (h as f32).max(0.5);
+                let (mut acc, mut wsum) = ([0.0f32; 3], 0.0f32);
+                for d in -(h as isize)..=h as isize {
+                    let (dr, dc) = if along_rows { (0, d) } else { (d, 0) };
                     let Some(j) = img.offset(r, c, dr, dc) else {
                         continue;
                     };
@@ -356,14 +388,16 @@ mod tests {
                     if !img.valid(j) || !same_surface(rho, img.range[j], alpha, tan_theta) {
                         continue;
                     }
-                    let (fr, fc) = (dr as f32 / sr, dc as f32 / sc);
-                    let w = (-0.5 * (fr * fr + fc * fc)).exp();
-                    (0..3).for_each(|k| acc[k] += w * img.xyz[j][k]);
+                    let f = d as f32 / s;
+                    let w = (-0.5 * f * f).exp();
+                    (0..3).for_each(|k| acc[k] += w * src[j][k]);
                     wsum += w;
                 }
+                *out = acc.map(|v| v / wsum);
             }
-            *out = acc.map(|v| v / wsum);
-        }
+            dst
+        };
+        let smooth = pass(&pass(&img.xyz, true), false);
         let mut out = vec![[0.0f32; 3]; img.len()];
         for (i, o) in out.iter_mut().enumerate() {
             let (r, c) = (i / img.cols, i % img.cols);
@@ -397,8 +431,9 @@ mod tests {
         out
     }
 
-    /// The tabulated trigonometry and kernel weights give the normals bit for bit, near the
-    /// sensor (the largest windows), at range steps, holes and across the seam.
+    /// The tabulated trigonometry and kernel weights and the runs inside rows give the
+    /// normals bit for bit, near the sensor (the largest windows), at range steps, holes and
+    /// across the seam.
     #[test]
     fn tabulated_normals_match_the_reference_bit_for_bit() {
         let (rows, cols) = (16, 360);
