@@ -88,22 +88,11 @@ pub fn integrate(
     let n = img.len();
     let mut owner = vec![0u32; n];
     // Pixels of each segment of each cue.
-    let mut members: Vec<Vec<Vec<u32>>> = cues
-        .iter()
-        .map(|c| {
-            let max = c.labels.iter().copied().max().unwrap_or(0) as usize;
-            let mut m = vec![Vec::new(); max + 1];
-            for (i, &l) in c.labels.iter().enumerate() {
-                if l > 0 {
-                    m[l as usize].push(i as u32);
-                }
-            }
-            m
-        })
-        .collect();
+    let mut members: Vec<Members> = cues.iter().map(|c| Members::of(&c.labels)).collect();
     let mut heap = BinaryHeap::new();
     for (k, m) in members.iter().enumerate() {
-        for (s, px) in m.iter().enumerate().skip(1) {
+        for s in 1..m.span.len() {
+            let px = m.get(s as u32);
             if !px.is_empty() {
                 heap.push(Cand {
                     coverage: coverage(img, px),
@@ -122,16 +111,15 @@ pub fn integrate(
     };
     let mut stamp = vec![0u32; n];
     let mut stamp_now = 0u32;
+    let (mut left, mut stack) = (Vec::new(), Vec::new());
     while let Some(c) = heap.pop() {
         if c.coverage < rules.min_coverage {
             break;
         }
-        let px = std::mem::take(&mut members[c.cue][c.seg as usize]);
-        let left: Vec<u32> = px
-            .iter()
-            .copied()
-            .filter(|&p| owner[p as usize] == 0)
-            .collect();
+        let m = &mut members[c.cue];
+        let px = m.take(c.seg);
+        left.clear();
+        left.extend(px.iter().copied().filter(|&p| owner[p as usize] == 0));
         if left.len() < px.len() {
             // Lost pixels: regroup the remainder into connected pieces, push them back.
             out.regrouped += 1;
@@ -139,17 +127,24 @@ pub fn integrate(
             for &p in &left {
                 stamp[p as usize] = stamp_now;
             }
-            for piece in pieces(&left, (&mut stamp, stamp_now), links) {
-                let id = members[c.cue].len() as u32;
-                for &p in &piece {
+            for &start in &left {
+                if stamp[start as usize] != stamp_now {
+                    continue;
+                }
+                let id = m.span.len() as u32;
+                let from = m.px.len();
+                piece(start, (&mut stamp, stamp_now), links, &mut stack, &mut m.px);
+                m.px[from..].sort_unstable();
+                m.span.push((from as u32, (m.px.len() - from) as u32));
+                let piece = m.get(id);
+                for &p in piece {
                     cues[c.cue].labels[p as usize] = id;
                 }
                 heap.push(Cand {
-                    coverage: coverage(img, &piece),
+                    coverage: coverage(img, piece),
                     cue: c.cue,
                     seg: id,
                 });
-                members[c.cue].push(piece);
             }
             continue;
         }
@@ -172,6 +167,51 @@ pub fn integrate(
     }
     out.labels = owner;
     out
+}
+
+/// The pixels of each segment of one cue, in ascending order, as ranges of one list (a
+/// counting sort of the labels: one allocation per cue instead of one per segment); the
+/// pieces of regrouped segments are appended.
+struct Members {
+    px: Vec<u32>,
+    /// Per segment id: start and length in `px` (length 0 once taken).
+    span: Vec<(u32, u32)>,
+}
+
+impl Members {
+    fn of(labels: &[u32]) -> Self {
+        let max = labels.iter().copied().max().unwrap_or(0) as usize;
+        let mut span = vec![(0u32, 0u32); max + 1];
+        for &l in labels {
+            span[l as usize].1 += 1;
+        }
+        span[0].1 = 0;
+        let mut at = 0;
+        for s in span.iter_mut() {
+            s.0 = at;
+            at += s.1;
+        }
+        let mut px = vec![0u32; at as usize];
+        let mut fill: Vec<u32> = span.iter().map(|s| s.0).collect();
+        for (i, &l) in labels.iter().enumerate() {
+            if l > 0 {
+                px[fill[l as usize] as usize] = i as u32;
+                fill[l as usize] += 1;
+            }
+        }
+        Members { px, span }
+    }
+
+    fn get(&self, seg: u32) -> &[u32] {
+        let (at, len) = self.span[seg as usize];
+        &self.px[at as usize..(at + len) as usize]
+    }
+
+    /// The segment's pixels, which it no longer has.
+    fn take(&mut self, seg: u32) -> &[u32] {
+        let (at, len) = std::mem::take(&mut self.span[seg as usize]);
+        &self.px[at as usize..(at + len) as usize]
+    }
 }
 
 /// Σ range over the pixels (eq. 6 up to the constant angular step).
@@ -199,32 +239,28 @@ fn dispersion(values: &[f32], dim: usize, px: &[u32]) -> f32 {
     (ss / n).sqrt() as f32
 }
 
-/// Connected pieces (linked neighbours, [`Links`]) of the pixels stamped `now`; each piece's
-/// pixels in ascending order, pieces by first pixel.
-fn pieces(px: &[u32], (stamp, now): (&mut [u32], u32), links: &Links) -> Vec<Vec<u32>> {
-    let mut out = Vec::new();
-    let mut stack = Vec::new();
-    for &start in px {
-        if stamp[start as usize] != now {
-            continue;
-        }
-        stamp[start as usize] = 0;
-        let mut piece = vec![start];
-        stack.push(start as usize);
-        while let Some(i) = stack.pop() {
-            for (j, _) in links.around(i).into_iter().flatten() {
-                let j = j as usize;
-                if stamp[j] == now {
-                    stamp[j] = 0;
-                    piece.push(j as u32);
-                    stack.push(j);
-                }
+/// The connected piece (linked neighbours, [`Links`]) of the pixels stamped `now` that holds
+/// `start`, appended to `out` (unstamped as they are taken; `stack` is scratch).
+fn piece(
+    start: u32,
+    (stamp, now): (&mut [u32], u32),
+    links: &Links,
+    stack: &mut Vec<usize>,
+    out: &mut Vec<u32>,
+) {
+    stamp[start as usize] = 0;
+    out.push(start);
+    stack.push(start as usize);
+    while let Some(i) = stack.pop() {
+        for (j, _) in links.around(i).into_iter().flatten() {
+            let j = j as usize;
+            if stamp[j] == now {
+                stamp[j] = 0;
+                out.push(j as u32);
+                stack.push(j);
             }
         }
-        piece.sort_unstable();
-        out.push(piece);
     }
-    out
 }
 
 #[cfg(test)]
