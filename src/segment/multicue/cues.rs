@@ -362,7 +362,7 @@ mod tests {
         let half = |rho: f32, step: f32| -> usize {
             ((window_m / (rho * step).max(1e-9) * 0.5) as usize).min(MAX_HALF)
         };
-        // One pass of the smoothing of `src` along rows (`rows` true) or columns.
+        // One pass of the smoothing of `src`: along rows (`along_rows`) or along columns.
         let pass = |src: &[[f32; 3]], along_rows: bool| -> Vec<[f32; 3]> {
             let mut dst = src.to_vec();
             for (i, out) in dst.iter_mut().enumerate() {

@@ -146,6 +146,8 @@ pub fn integrate(
                     seg: id,
                 });
             }
+            m.live += left.len();
+            m.compact_if_sparse();
             continue;
         }
         if left.len() < rules.min_pixels {
@@ -176,6 +178,8 @@ struct Members {
     px: Vec<u32>,
     /// Per segment id: start and length in `px` (length 0 once taken).
     span: Vec<(u32, u32)>,
+    /// Pixels in the segments not taken yet: the rest of `px` is garbage.
+    live: usize,
 }
 
 impl Members {
@@ -199,7 +203,27 @@ impl Members {
                 fill[l as usize] += 1;
             }
         }
-        Members { px, span }
+        Members {
+            live: px.len(),
+            px,
+            span,
+        }
+    }
+
+    /// Drops the pixels of taken segments once they are more than half of the list: a
+    /// segment regrouped again and again appends its remainder each time, and without this
+    /// the list could grow with the square of its size.
+    fn compact_if_sparse(&mut self) {
+        if self.px.len() <= 2 * self.live + 4096 {
+            return;
+        }
+        let mut px = Vec::with_capacity(2 * self.live);
+        for s in self.span.iter_mut().filter(|s| s.1 > 0) {
+            let at = px.len() as u32;
+            px.extend_from_slice(&self.px[s.0 as usize..(s.0 + s.1) as usize]);
+            s.0 = at;
+        }
+        self.px = px;
     }
 
     fn get(&self, seg: u32) -> &[u32] {
@@ -210,6 +234,7 @@ impl Members {
     /// The segment's pixels, which it no longer has.
     fn take(&mut self, seg: u32) -> &[u32] {
         let (at, len) = std::mem::take(&mut self.span[seg as usize]);
+        self.live -= len as usize;
         &self.px[at as usize..(at + len) as usize]
     }
 }
@@ -278,6 +303,40 @@ mod tests {
             max_dispersion: max,
             veto,
         }
+    }
+
+    /// A segment regrouped again and again (each time one pixel lost) keeps its pixels, and
+    /// the member list stays within twice the live pixels instead of growing with the square.
+    #[test]
+    fn member_lists_survive_repeated_regrouping_and_stay_compact() {
+        let n = 20_000u32;
+        // Segment 1: the even pixels; segment 2: the odd ones.
+        let labels: Vec<u32> = (0..n).map(|i| 1 + i % 2).collect();
+        let mut m = Members::of(&labels);
+        assert_eq!(m.get(1).len(), 10_000);
+        assert!(m.get(2).iter().all(|&p| p % 2 == 1));
+        let mut seg = 1u32;
+        let mut want: Vec<u32> = (0..n).step_by(2).collect();
+        let mut peak = 0;
+        for _ in 0..2_000 {
+            let px = m.take(seg).to_vec();
+            assert_eq!(px, want);
+            // Lost its first pixel: the remainder comes back as one new segment.
+            want.remove(0);
+            let from = m.px.len();
+            m.px.extend_from_slice(&px[1..]);
+            seg = m.span.len() as u32;
+            m.span.push((from as u32, (m.px.len() - from) as u32));
+            m.live += px.len() - 1;
+            m.compact_if_sparse();
+            peak = peak.max(m.px.len());
+        }
+        assert_eq!(m.get(seg), &want[..]);
+        assert_eq!(m.get(2).len(), 10_000, "the untouched segment moved intact");
+        assert!(m.get(2).iter().all(|&p| p % 2 == 1));
+        assert_eq!(m.live, want.len() + 10_000);
+        // Without compaction: 20,000 + the 2,000 remainders (about 18 M entries).
+        assert!(peak <= 2 * (10_000 + 10_000) + 4096 + 10_000, "peak {peak}");
     }
 
     #[test]
