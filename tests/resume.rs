@@ -104,10 +104,7 @@ fn killed_ten_times_then_resumed_is_byte_identical() {
     let d = tempfile::tempdir().unwrap();
     let inputs = scene(d.path(), 250);
     let reference = d.path().join("reference");
-    let t = Instant::now();
-    let o = run_cmd(&reference, &inputs, &[]).output().unwrap();
-    assert!(o.status.success(), "{}", stderr(&o));
-    let t_ref = t.elapsed().as_secs_f64();
+    let (t_ref, t_first, gap) = timed_run(&reference, &inputs);
     let s_ref = summary(&reference);
     let points = s_ref["points_in"].as_u64().unwrap();
     assert!(points >= 5_000_000, "{points} points");
@@ -119,27 +116,45 @@ fn killed_ten_times_then_resumed_is_byte_identical() {
         .unwrap_or(20_261_125u64);
     let mut rng = Lcg(seed);
     let out = d.path().join("out");
+    // Five kills early in a run and five later, in a seeded order.
+    let mut early_kills = [
+        true, true, true, true, true, false, false, false, false, false,
+    ];
+    for i in (1..early_kills.len()).rev() {
+        let j = (rng.next_f64() * (i + 1) as f64) as usize;
+        early_kills.swap(i, j.min(i));
+    }
     let mut kills = Vec::new();
-    for k in 0..10 {
-        // The moment: half of the kills at a random time early in the run (while inputs are
-        // read and tiled again), the others a random 0–1.5 s after the run journaled its next
-        // cell (while cells are processed and stitched tiles written). Ten kills never use up
-        // the scene's cells, so every kill meets a live run.
-        let early = rng.next_f64() < 0.5;
+    for (k, &early) in early_kills.iter().enumerate() {
+        // The moments are scaled by the uninterrupted run's own timeline on this machine, so
+        // that they mean the same on a fast machine as on a slow one (fixed delays let a fast
+        // machine finish the scene before the tenth kill). An early kill lands at a random
+        // moment before the reference journaled its first cell: while inputs are read, tiled
+        // again and the first cells processed. A late one lands a random 0–60 % of the
+        // reference's time between two journal bursts after the run journaled its next line:
+        // while cells are processed and stitched tiles written. Either is brought forward to
+        // the moment the journal grows by more than it should (1 line early, 3 late), so the
+        // ten kills cost at most 20 of the 250 m scene's 24 journal lines (12 cells, 12 tiles
+        // written) and every kill meets a live run.
         let delay = Duration::from_secs_f64(if early {
-            0.3 + rng.next_f64() * 0.1 * t_ref
+            rng.next_f64() * t_first
         } else {
-            rng.next_f64() * 1.5
+            rng.next_f64() * 0.6 * gap
         });
         let before = journal_lines(&out);
+        let limit = before + if early { 1 } else { 3 };
         let mut child = run_cmd(&out, &inputs, &[]).spawn().unwrap();
         let t = Instant::now();
         let mut since: Option<Instant> = early.then_some(t);
-        while since.is_none_or(|s| s.elapsed() < delay) {
+        loop {
             if let Some(st) = child.try_wait().unwrap() {
                 panic!("seed {seed}: run {k} ended ({st}) before its kill");
             }
-            if since.is_none() && journal_lines(&out) > before {
+            let lines = journal_lines(&out);
+            if lines >= limit || since.is_some_and(|s| s.elapsed() >= delay) {
+                break;
+            }
+            if since.is_none() && lines > before {
                 since = Some(Instant::now());
             }
             assert!(t.elapsed() < Duration::from_secs_f64(3.0 * t_ref + 60.0));
@@ -152,7 +167,10 @@ fn killed_ten_times_then_resumed_is_byte_identical() {
         assert!(!out.join("summary.json").exists());
         kills.push((t.elapsed().as_secs_f64(), before, journal_lines(&out)));
     }
-    eprintln!("seed {seed}: kills (s after start, journal lines before, after): {kills:?}");
+    eprintln!(
+        "seed {seed}: reference {t_ref:.2} s, first cell at {t_first:.2} s, {gap:.2} s between \
+         journal bursts; kills (s after start, journal lines before, after): {kills:?}"
+    );
     let o = run_cmd(&out, &inputs, &[]).output().unwrap();
     assert!(o.status.success(), "seed {seed}: {}", stderr(&o));
     let s = summary(&out);
@@ -169,6 +187,40 @@ fn killed_ten_times_then_resumed_is_byte_identical() {
         "seed {seed}: the resumed run's outputs differ from the uninterrupted run's"
     );
     assert!(!out.join(".tessera-resume").exists(), "journal left");
+}
+
+/// Runs `inputs` into `out` uninterrupted, watching its journal: the run's time, when its
+/// first journal line appeared and the median time between journal bursts (lines within
+/// 0.2 s of each other — cells finished together by the two workers and the tiles then
+/// written — are one burst), all in seconds.
+fn timed_run(out: &Path, inputs: &[PathBuf]) -> (f64, f64, f64) {
+    let mut child = run_cmd(out, inputs, &[]).spawn().unwrap();
+    let t = Instant::now();
+    let (mut lines, mut bursts) = (0, Vec::<f64>::new());
+    let status = loop {
+        if let Some(st) = child.try_wait().unwrap() {
+            break st;
+        }
+        let now = journal_lines(out);
+        if now > lines {
+            let at = t.elapsed().as_secs_f64();
+            if bursts.last().is_none_or(|&b| at - b > 0.2) {
+                bursts.push(at);
+            }
+            lines = now;
+        }
+        assert!(
+            t.elapsed() < Duration::from_secs(600),
+            "reference run hangs"
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    };
+    assert!(status.success(), "reference run: {status}");
+    let t_run = t.elapsed().as_secs_f64();
+    assert!(bursts.len() >= 3, "too few journal bursts: {bursts:?}");
+    let mut gaps: Vec<f64> = bursts.windows(2).map(|w| w[1] - w[0]).collect();
+    gaps.sort_by(f64::total_cmp);
+    (t_run, bursts[0], gaps[gaps.len() / 2])
 }
 
 /// Kills a run of `inputs` into `out` once its journal records at least one cell.
