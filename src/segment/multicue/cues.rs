@@ -40,6 +40,9 @@ pub struct SurfaceTest {
     tan_theta: f32,
     reach: isize,
     cs: Vec<[f32; 2]>,
+    /// The table's column `dc = 0` (rows `-reach..=reach`), contiguous for the column pass
+    /// of the normals' smoothing.
+    column: Vec<[f32; 2]>,
     row_step: f32,
     col_step: f32,
 }
@@ -55,10 +58,13 @@ impl SurfaceTest {
                 cs.push([alpha.cos(), alpha.sin()]);
             }
         }
+        let w = (2 * reach + 1) as usize;
+        let column = cs.iter().skip(reach as usize).step_by(w).copied().collect();
         SurfaceTest {
             tan_theta,
             reach,
             cs,
+            column,
             row_step: img.row_step,
             col_step: img.col_step,
         }
@@ -74,6 +80,17 @@ impl SurfaceTest {
         let w = 2 * self.reach + 1;
         let at = ((dr + self.reach) * w + self.reach - half) as usize;
         Some(&self.cs[at..=at + 2 * half as usize])
+    }
+
+    /// The table's cosines and sines for `-half..=half` rows and no column apart, when it
+    /// reaches that far.
+    #[inline]
+    fn column(&self, half: isize) -> Option<&[[f32; 2]]> {
+        if half > self.reach {
+            return None;
+        }
+        let at = (self.reach - half) as usize;
+        Some(&self.column[at..=at + 2 * half as usize])
     }
 
     /// Whether returns at ranges `a` and `b`, `dr` rows and `dc` columns apart, lie on one
@@ -275,15 +292,30 @@ fn smoothed(img: &RangeImage, window_m: f32, test: &SurfaceTest) -> Vec<[f32; 3]
         }
         let r = i / cols;
         let (mut acc, mut wsum) = ([0.0f32; 3], 0.0f32);
-        for (dr, &w) in (-(h as isize)..=h as isize).zip(kernel(h)) {
-            let rr = r as isize + dr;
-            if rr < 0 || rr >= rows as isize {
-                continue;
+        let w = kernel(h);
+        if let Some(cs) = test.column(h as isize) {
+            // The rows the window has in the image, and the same pixels in the same order as
+            // below without a bounds test or a table lookup per pixel.
+            let (up, down) = (h.min(r), h.min(rows - 1 - r));
+            let mut j = i - up * cols;
+            for t in h - up..=h + down {
+                let rj = img.range[j];
+                if rj > 0.0 && same_surface_cs(rho, rj, cs[t], test.tan_theta) {
+                    add(&mut acc, &mut wsum, w[t], along[j]);
+                }
+                j += cols;
             }
-            let j = (i as isize + dr * cols as isize) as usize;
-            let rj = img.range[j];
-            if rj > 0.0 && test.holds(rho, rj, dr, 0) {
-                add(&mut acc, &mut wsum, w, along[j]);
+        } else {
+            for (dr, &w) in (-(h as isize)..=h as isize).zip(w) {
+                let rr = r as isize + dr;
+                if rr < 0 || rr >= rows as isize {
+                    continue;
+                }
+                let j = (i as isize + dr * cols as isize) as usize;
+                let rj = img.range[j];
+                if rj > 0.0 && test.holds(rho, rj, dr, 0) {
+                    add(&mut acc, &mut wsum, w, along[j]);
+                }
             }
         }
         *o = acc.map(|v| v / wsum);
