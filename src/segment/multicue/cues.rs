@@ -134,6 +134,10 @@ pub struct Links {
     pub test: SurfaceTest,
     /// Per pixel: right, left, down, up (the order the regrouping walks them).
     around: Vec<[Link; 4]>,
+    /// Every link once, as the pixel and its right or down neighbour, in pixel order (right
+    /// before down): the pairs each cue's grouping tests, without visiting pixels that have
+    /// no return or copying their four links.
+    pairs: Vec<[u32; 2]>,
 }
 
 impl Links {
@@ -141,6 +145,7 @@ impl Links {
     pub fn new(img: &RangeImage, jump: Jump) -> Self {
         let test = SurfaceTest::new(img, jump.tan_theta, MAX_HALF.max(jump.max_gap_px + 1));
         let mut around = vec![[None; 4]; img.len()];
+        let mut pairs = Vec::with_capacity(2 * img.valid_count());
         for r in 0..img.rows {
             for c in 0..img.cols {
                 let i = r * img.cols + c;
@@ -157,11 +162,22 @@ impl Links {
                     if test.holds(img.range[i], img.range[j], k * dr, k * dc) {
                         around[i][fwd] = Some((j as u32, k as u8));
                         around[j][back] = Some((i as u32, k as u8));
+                        pairs.push([i as u32, j as u32]);
                     }
                 }
             }
         }
-        Links { test, around }
+        Links {
+            test,
+            around,
+            pairs,
+        }
+    }
+
+    /// Every link once: each pixel with its right, then its down neighbour, pixels in order.
+    #[inline]
+    pub fn pairs(&self) -> &[[u32; 2]] {
+        &self.pairs
     }
 
     /// The linked neighbours of pixel `i`: right, left, down, up.
@@ -550,6 +566,18 @@ mod tests {
                 }
             }
             assert!(linked > img.len(), "gap {max_gap_px}: {linked} links");
+            // The pairs: every right and down link, pixels in order, right before down.
+            let pairs: Vec<[u32; 2]> = (0..img.len())
+                .flat_map(|i| {
+                    let [right, _, down, _] = links.around(i);
+                    [right, down]
+                        .into_iter()
+                        .flatten()
+                        .map(move |(j, _)| [i as u32, j])
+                })
+                .collect();
+            assert_eq!(links.pairs(), pairs, "gap {max_gap_px}");
+            assert_eq!(2 * pairs.len(), linked, "gap {max_gap_px}");
             assert_eq!(
                 gaps > 0,
                 max_gap_px > 0,

@@ -316,16 +316,12 @@ pub fn group<const D: usize>(
 ) -> (Vec<u32>, u32) {
     let lim = (k.merge * k.hr) * (k.merge * k.hr);
     let mut uf = UnionFind::new(filtered.len());
-    for (i, &u) in usable.iter().enumerate() {
-        if !u {
-            continue;
-        }
-        let [right, _, down, _] = links.around(i);
-        for (j, _) in [right, down].into_iter().flatten() {
-            let j = j as usize;
-            if usable[j] && d2(&filtered[i], &filtered[j]) < lim {
-                uf.union(i, j);
-            }
+    // The pairs in the order of their first pixel, right before down (as walking each
+    // pixel's links would visit them): the same unions in the same order.
+    for &[i, j] in links.pairs() {
+        let (i, j) = (i as usize, j as usize);
+        if usable[i] && usable[j] && d2(&filtered[i], &filtered[j]) < lim {
+            uf.union(i, j);
         }
     }
     uf.labels(usable)
@@ -357,22 +353,28 @@ impl UnionFind {
             self.parent[hi] = lo as u32;
         }
     }
-    /// Labels 1.. per root in order of first pixel, 0 where `keep` is false.
-    pub(crate) fn labels(&mut self, keep: &[bool]) -> (Vec<u32>, u32) {
+    /// Labels 1.. per root in order of first pixel, 0 where `keep` is false. Every pixel of a
+    /// set of more than one must be kept (the grouping joins usable pixels only).
+    pub(crate) fn labels(&self, keep: &[bool]) -> (Vec<u32>, u32) {
+        // No search for roots: a set's root is its smallest pixel (a union hangs the larger
+        // root under the smaller, path halving only shortens paths), and every other pixel's
+        // parent is smaller than the pixel. In pixel order a root opens its set's label, and
+        // each other pixel takes its parent's, which is labelled by then.
         let n = self.parent.len();
-        let mut id = vec![0u32; n];
         let mut out = vec![0u32; n];
         let mut next = 0;
         for i in 0..n {
             if !keep[i] {
                 continue;
             }
-            let r = self.find(i);
-            if id[r] == 0 {
+            let p = self.parent[i] as usize;
+            out[i] = if p == i {
                 next += 1;
-                id[r] = next;
-            }
-            out[i] = id[r];
+                next
+            } else {
+                debug_assert!(p < i && keep[p], "pixel {i}: parent {p}");
+                out[p]
+            };
         }
         (out, next)
     }
@@ -701,6 +703,41 @@ mod tests {
         assert_eq!((bridged[4], bridged[8], bridged[12]), (0, 0, 0));
         for r in 1..rows {
             assert_eq!(bridged[r * cols + 5], bridged[5]);
+        }
+    }
+
+    /// Labels without a search for roots are those of searching each kept pixel's root and
+    /// numbering roots by first pixel, after random unions among kept pixels (as the grouping
+    /// makes them: forward pairs, any order of sizes).
+    #[test]
+    fn labels_by_parent_are_labels_by_root() {
+        let mut rng = crate::rng::Rng(22);
+        for round in 0..50 {
+            let n = 1 + (rng.u() * 400.0) as usize;
+            let keep: Vec<bool> = (0..n).map(|_| rng.u() < 0.7).collect();
+            let kept: Vec<usize> = (0..n).filter(|&i| keep[i]).collect();
+            let mut uf = UnionFind::new(n);
+            for _ in 0..(rng.u() * 2.0 * n as f64) as usize {
+                if kept.len() < 2 {
+                    break;
+                }
+                let a = kept[(rng.u() * kept.len() as f64) as usize];
+                let b = kept[(rng.u() * kept.len() as f64) as usize];
+                uf.union(a.min(b), a.max(b));
+            }
+            let (got, count) = uf.labels(&keep);
+            let (mut id, mut want, mut next) = (vec![0u32; n], vec![0u32; n], 0);
+            for i in 0..n {
+                if keep[i] {
+                    let r = uf.find(i);
+                    if id[r] == 0 {
+                        next += 1;
+                        id[r] = next;
+                    }
+                    want[i] = id[r];
+                }
+            }
+            assert_eq!((got, count), (want, next), "round {round}");
         }
     }
 }
