@@ -246,18 +246,32 @@ fn coverage(img: &RangeImage, px: &[u32]) -> f32 {
 
 /// RMS distance of the pixels' values from their mean.
 fn dispersion(values: &[f32], dim: usize, px: &[u32]) -> f32 {
+    // The cues' dimensions as constants: the loops over a value's components unrolled and
+    // their bounds known (a quarter of the integration's instructions). The same sums in the
+    // same order whatever the dimension.
+    match dim {
+        1 => dispersion_in::<1>(values, dim, px),
+        3 => dispersion_in::<3>(values, dim, px),
+        _ => dispersion_in::<0>(values, dim, px),
+    }
+}
+
+/// [`dispersion`] of values of dimension `D`, or `dim` when `D` is 0.
+fn dispersion_in<const D: usize>(values: &[f32], dim: usize, px: &[u32]) -> f32 {
+    let dim = if D > 0 { D } else { dim };
     let n = px.len() as f64;
+    let at = |p: u32| &values[p as usize * dim..(p as usize + 1) * dim];
     let mut mean = vec![0.0f64; dim];
     for &p in px {
-        for (k, m) in mean.iter_mut().enumerate() {
-            *m += values[p as usize * dim + k] as f64;
+        for (m, &v) in mean.iter_mut().zip(at(p)) {
+            *m += v as f64;
         }
     }
     mean.iter_mut().for_each(|m| *m /= n);
     let mut ss = 0.0f64;
     for &p in px {
-        for (k, m) in mean.iter().enumerate() {
-            let d = values[p as usize * dim + k] as f64 - m;
+        for (m, &v) in mean.iter().zip(at(p)) {
+            let d = v as f64 - m;
             ss += d * d;
         }
     }
@@ -425,6 +439,38 @@ mod tests {
                 vetoed.labels[i],
                 if i % cols < 5 { 1 } else { 2 },
                 "pixel {i}"
+            );
+        }
+    }
+
+    /// The dispersion with the dimension as a constant (1, 3) or not (2, 4) is the RMS
+    /// distance from the mean summed the plain way, bit for bit.
+    #[test]
+    fn dispersion_is_the_rms_distance_from_the_mean_in_any_dimension() {
+        let mut rng = crate::rng::Rng(6);
+        for dim in 1..=4 {
+            let values: Vec<f32> = (0..100 * dim).map(|_| rng.u() as f32 * 10.0).collect();
+            let px: Vec<u32> = (0..100).filter(|_| rng.u() < 0.6).collect();
+            let n = px.len() as f64;
+            let mut mean = vec![0.0f64; dim];
+            for &p in &px {
+                for k in 0..dim {
+                    mean[k] += values[p as usize * dim + k] as f64;
+                }
+            }
+            let mean: Vec<f64> = mean.iter().map(|m| m / n).collect();
+            let mut ss = 0.0f64;
+            for &p in &px {
+                for k in 0..dim {
+                    let d = values[p as usize * dim + k] as f64 - mean[k];
+                    ss += d * d;
+                }
+            }
+            let want = (ss / n).sqrt() as f32;
+            assert_eq!(
+                dispersion(&values, dim, &px).to_bits(),
+                want.to_bits(),
+                "{dim}"
             );
         }
     }
