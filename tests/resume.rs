@@ -217,10 +217,16 @@ fn timed_run(out: &Path, inputs: &[PathBuf]) -> (f64, f64, f64) {
     };
     assert!(status.success(), "reference run: {status}");
     let t_run = t.elapsed().as_secs_f64();
-    assert!(bursts.len() >= 3, "too few journal bursts: {bursts:?}");
+    assert!(!bursts.is_empty(), "the run journaled nothing");
     let mut gaps: Vec<f64> = bursts.windows(2).map(|w| w[1] - w[0]).collect();
     gaps.sort_by(f64::total_cmp);
-    (t_run, bursts[0], gaps[gaps.len() / 2])
+    // A machine fast enough to journal everything in one or two bursts: the cells' time
+    // spread over them.
+    let gap = match gaps.len() {
+        0 | 1 => (t_run - bursts[0]) / 2.0,
+        n => gaps[n / 2],
+    };
+    (t_run, bursts[0], gap)
 }
 
 /// Kills a run of `inputs` into `out` once its journal records at least one cell.
