@@ -235,9 +235,16 @@ fn smoothed(img: &RangeImage, window_m: f32, test: &SurfaceTest) -> Vec<[f32; 3]
     if window_m <= 0.0 {
         return img.xyz.clone();
     }
-    let half = |rho: f32, step: f32| -> usize {
+    // A pixel's range and half-window along beams `step` apart; none without a return or
+    // with a window of the pixel alone.
+    let half = |i: usize, step: f32| -> Option<(f32, usize)> {
+        let rho = img.range[i];
+        if rho <= 0.0 {
+            return None;
+        }
         let d = window_m / (rho * step).max(1e-9);
-        ((d * 0.5) as usize).min(MAX_HALF)
+        let h = ((d * 0.5) as usize).min(MAX_HALF);
+        (h > 0).then_some((rho, h))
     };
     // The kernel's weights for every half-window `h`, offsets -MAX_HALF..=MAX_HALF.
     let side = 2 * MAX_HALF + 1;
@@ -261,14 +268,9 @@ fn smoothed(img: &RangeImage, window_m: f32, test: &SurfaceTest) -> Vec<[f32; 3]
     for r in 0..rows {
         for c in 0..cols {
             let i = r * cols + c;
-            let rho = img.range[i];
-            if rho <= 0.0 {
+            let Some((rho, h)) = half(i, img.col_step) else {
                 continue;
-            }
-            let h = half(rho, img.col_step);
-            if h == 0 {
-                continue;
-            }
+            };
             let (mut acc, mut wsum) = ([0.0f32; 3], 0.0f32);
             let hc = h as isize;
             let w = kernel(h);
@@ -298,14 +300,9 @@ fn smoothed(img: &RangeImage, window_m: f32, test: &SurfaceTest) -> Vec<[f32; 3]
     // Pass 2: along columns, of the rows' result. Rows do not wrap.
     let mut out = along.clone();
     for (i, o) in out.iter_mut().enumerate() {
-        let rho = img.range[i];
-        if rho <= 0.0 {
+        let Some((rho, h)) = half(i, img.row_step) else {
             continue;
-        }
-        let h = half(rho, img.row_step);
-        if h == 0 {
-            continue;
-        }
+        };
         let r = i / cols;
         let (mut acc, mut wsum) = ([0.0f32; 3], 0.0f32);
         let w = kernel(h);
