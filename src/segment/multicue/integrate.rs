@@ -247,7 +247,7 @@ fn coverage(img: &RangeImage, px: &[u32]) -> f32 {
 /// RMS distance of the pixels' values from their mean.
 fn dispersion(values: &[f32], dim: usize, px: &[u32]) -> f32 {
     // The cues' dimensions as constants: the loops over a value's components unrolled and
-    // their bounds known (a quarter of the integration's instructions). The same sums in the
+    // their bounds known (a fifth of the integration's instructions). The same sums in the
     // same order whatever the dimension.
     match dim {
         1 => dispersion_in::<1>(values, dim, px),
