@@ -134,10 +134,11 @@ pub struct Links {
     pub test: SurfaceTest,
     /// Per pixel: right, left, down, up (the order the regrouping walks them).
     around: Vec<[Link; 4]>,
-    /// Every link once, as the pixel and its right or down neighbour, in pixel order (right
-    /// before down): the pairs each cue's grouping tests, without visiting pixels that have
-    /// no return or copying their four links.
-    pairs: Vec<[u32; 2]>,
+    /// Every link to a right neighbour that does not cross the seam, as the pair of pixels,
+    /// in pixel order: the later pixel's only link from the left.
+    row_pairs: Vec<[u32; 2]>,
+    /// Every other link once: down, and right across the seam; in pixel order.
+    other_pairs: Vec<[u32; 2]>,
 }
 
 impl Links {
@@ -145,7 +146,8 @@ impl Links {
     pub fn new(img: &RangeImage, jump: Jump) -> Self {
         let test = SurfaceTest::new(img, jump.tan_theta, MAX_HALF.max(jump.max_gap_px + 1));
         let mut around = vec![[None; 4]; img.len()];
-        let mut pairs = Vec::with_capacity(2 * img.valid_count());
+        let mut row_pairs = Vec::with_capacity(img.valid_count());
+        let mut other_pairs = Vec::with_capacity(img.valid_count());
         for r in 0..img.rows {
             for c in 0..img.cols {
                 let i = r * img.cols + c;
@@ -162,7 +164,11 @@ impl Links {
                     if test.holds(img.range[i], img.range[j], k * dr, k * dc) {
                         around[i][fwd] = Some((j as u32, k as u8));
                         around[j][back] = Some((i as u32, k as u8));
-                        pairs.push([i as u32, j as u32]);
+                        if dr == 0 && j > i {
+                            row_pairs.push([i as u32, j as u32]);
+                        } else {
+                            other_pairs.push([i as u32, j as u32]);
+                        }
                     }
                 }
             }
@@ -170,14 +176,25 @@ impl Links {
         Links {
             test,
             around,
-            pairs,
+            row_pairs,
+            other_pairs,
         }
     }
 
-    /// Every link once: each pixel with its right, then its down neighbour, pixels in order.
+    /// Every link along a row once, as `[i, j]`: `j` is `i`'s right neighbour, `j > i` (the
+    /// links across the seam are in [`Links::other_pairs`]), and no other pair has `j`
+    /// second. In pixel order. Each cue's grouping tests these pairs without visiting pixels
+    /// that have no return or copying their four links.
     #[inline]
-    pub fn pairs(&self) -> &[[u32; 2]] {
-        &self.pairs
+    pub fn row_pairs(&self) -> &[[u32; 2]] {
+        &self.row_pairs
+    }
+
+    /// Every other link once, as `[i, j]` with `j` the right (across the seam) or down
+    /// neighbour of `i`, in pixel order.
+    #[inline]
+    pub fn other_pairs(&self) -> &[[u32; 2]] {
+        &self.other_pairs
     }
 
     /// The linked neighbours of pixel `i`: right, left, down, up.
@@ -563,7 +580,8 @@ mod tests {
                 }
             }
             assert!(linked > img.len(), "gap {max_gap_px}: {linked} links");
-            // The pairs: every right and down link, pixels in order, right before down.
+            // The pairs: every right and down link, pixels in order; those to the right
+            // within a row apart, each pixel second in at most one of them.
             let pairs: Vec<[u32; 2]> = (0..img.len())
                 .flat_map(|i| {
                     let [right, _, down, _] = links.around(i);
@@ -573,7 +591,20 @@ mod tests {
                         .map(move |(j, _)| [i as u32, j])
                 })
                 .collect();
-            assert_eq!(links.pairs(), pairs, "gap {max_gap_px}");
+            let (row, other): (Vec<[u32; 2]>, Vec<[u32; 2]>) = pairs
+                .iter()
+                .partition(|&&[i, j]| j > i && i as usize / cols == j as usize / cols);
+            assert_eq!(links.row_pairs(), row, "gap {max_gap_px}");
+            assert_eq!(links.other_pairs(), other, "gap {max_gap_px}");
+            let mut second = vec![0; img.len()];
+            for &[_, j] in &row {
+                second[j as usize] += 1;
+            }
+            assert!(second.iter().all(|&n| n <= 1), "gap {max_gap_px}");
+            assert!(
+                other.iter().any(|&[i, j]| j < i),
+                "gap {max_gap_px}: no link across the seam"
+            );
             assert_eq!(2 * pairs.len(), linked, "gap {max_gap_px}");
             assert_eq!(
                 gaps > 0,
