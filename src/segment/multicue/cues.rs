@@ -97,15 +97,21 @@ impl SurfaceTest {
     /// surface ([`same_surface`]).
     #[inline]
     pub fn holds(&self, a: f32, b: f32, dr: isize, dc: isize) -> bool {
+        same_surface_cs(a, b, self.cos_sin(dr, dc), self.tan_theta)
+    }
+
+    /// The cosine and sine of the angle between beams `dr` rows and `dc` columns apart: from
+    /// the table where it reaches, else computed.
+    #[inline]
+    fn cos_sin(&self, dr: isize, dc: isize) -> [f32; 2] {
         let w = 2 * self.reach + 1;
-        let cs = if dr.abs() <= self.reach && dc.abs() <= self.reach {
+        if dr.abs() <= self.reach && dc.abs() <= self.reach {
             self.cs[((dr + self.reach) * w + dc + self.reach) as usize]
         } else {
             let (x, y) = (dr as f32 * self.row_step, dc as f32 * self.col_step);
             let alpha = (x * x + y * y).sqrt();
             [alpha.cos(), alpha.sin()]
-        };
-        same_surface_cs(a, b, cs, self.tan_theta)
+        }
     }
 }
 
@@ -145,30 +151,60 @@ impl Links {
     /// The links of `img` under `jump`.
     pub fn new(img: &RangeImage, jump: Jump) -> Self {
         let test = SurfaceTest::new(img, jump.tan_theta, MAX_HALF.max(jump.max_gap_px + 1));
+        let (rows, cols) = (img.rows, img.cols);
+        let reach = jump.max_gap_px + 1;
+        // The table's cosines and sines for 1..=reach steps right and down.
+        let steps = |dr: isize, dc: isize| -> Vec<[f32; 2]> {
+            (1..=reach as isize)
+                .map(|k| test.cos_sin(k * dr, k * dc))
+                .collect()
+        };
+        let (right_cs, down_cs) = (steps(0, 1), steps(1, 0));
         let mut around = vec![[None; 4]; img.len()];
         let mut row_pairs = Vec::with_capacity(img.valid_count());
         let mut other_pairs = Vec::with_capacity(img.valid_count());
-        for r in 0..img.rows {
-            for c in 0..img.cols {
-                let i = r * img.cols + c;
+        for r in 0..rows {
+            for c in 0..cols {
+                let i = r * cols + c;
                 if !img.valid(i) {
                     continue;
                 }
+                let rho = img.range[i];
                 // Right and down; the link back (left, up) is the same pair: the first pixel
                 // with a return after `i` has `i` as its first one before, at the same
-                // distance, and the test is symmetric.
-                for (dr, dc, fwd, back) in [(0, 1, 0, 1), (1, 0, 2, 3)] {
-                    let Some((j, k)) = img.across(r, c, dr, dc, jump.max_gap_px) else {
-                        continue;
-                    };
-                    if test.holds(img.range[i], img.range[j], k * dr, k * dc) {
-                        around[i][fwd] = Some((j as u32, k as u8));
-                        around[j][back] = Some((i as u32, k as u8));
-                        if dr == 0 && j > i {
+                // distance, and the test is symmetric. Away from the image's last columns
+                // and rows the search needs neither the seam nor the image's end
+                // (`RangeImage::across` handles those): the same pixels, found directly.
+                let right = if c + reach < cols {
+                    (1..=reach).find(|&k| img.valid(i + k)).map(|k| (i + k, k))
+                } else {
+                    img.across(r, c, 0, 1, jump.max_gap_px)
+                        .map(|(j, k)| (j, k as usize))
+                };
+                if let Some((j, k)) = right {
+                    if same_surface_cs(rho, img.range[j], right_cs[k - 1], test.tan_theta) {
+                        around[i][0] = Some((j as u32, k as u8));
+                        around[j][1] = Some((i as u32, k as u8));
+                        if j > i {
                             row_pairs.push([i as u32, j as u32]);
                         } else {
                             other_pairs.push([i as u32, j as u32]);
                         }
+                    }
+                }
+                let down = if r + reach < rows {
+                    (1..=reach)
+                        .find(|&k| img.valid(i + k * cols))
+                        .map(|k| (i + k * cols, k))
+                } else {
+                    img.across(r, c, 1, 0, jump.max_gap_px)
+                        .map(|(j, k)| (j, k as usize))
+                };
+                if let Some((j, k)) = down {
+                    if same_surface_cs(rho, img.range[j], down_cs[k - 1], test.tan_theta) {
+                        around[i][2] = Some((j as u32, k as u8));
+                        around[j][3] = Some((i as u32, k as u8));
+                        other_pairs.push([i as u32, j as u32]);
                     }
                 }
             }
@@ -541,7 +577,9 @@ mod tests {
     /// seam and across gaps.
     #[test]
     fn links_are_the_searched_and_tested_neighbours_in_all_four_directions() {
-        let (rows, cols) = (16, 360);
+        // Columns three times closer than rows, as on a spinning sensor: a test taking one
+        // direction's beam angle for the other fails.
+        let (rows, cols) = (16, 1080);
         let mut pts = plane_and_wall(rows, cols);
         let mut rng = crate::rng::Rng(4);
         for p in pts.iter_mut() {
