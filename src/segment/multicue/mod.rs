@@ -21,6 +21,7 @@ pub mod meanshift;
 mod refine;
 pub mod ties;
 
+use std::borrow::Cow;
 use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
@@ -253,12 +254,12 @@ pub fn without_small_segments(truth: &mut [u32], min_points: usize) {
 }
 
 /// One cue as the mean shift and the integration take it.
-struct CueInput {
+struct CueInput<'a> {
     cue: Cue,
-    /// Values per pixel, `dim` each, flattened.
-    values: Vec<f32>,
+    /// Values per pixel, `dim` each, flattened: the image's own where it has them.
+    values: Cow<'a, [f32]>,
     dim: usize,
-    usable: Vec<bool>,
+    usable: Cow<'a, [bool]>,
     kernel: Kernel,
     max_dispersion: f32,
     veto: bool,
@@ -289,19 +290,19 @@ pub fn segment_scan(img: &RangeImage, p: &MulticueParams) -> ScanSegmentation {
         match cue {
             Cue::Range => flat.push(CueInput {
                 cue,
-                values: img.range.clone(),
+                values: Cow::Borrowed(&img.range),
                 dim: 1,
-                usable: valid.clone(),
+                usable: Cow::Borrowed(&valid),
                 kernel: kernel(p.range_hr_m),
                 max_dispersion: p.range_max_dispersion_m,
                 veto: false,
             }),
             Cue::Normals => {
                 let nrm = cues::normals(img, p.smooth_window_m, &links);
-                let usable = nrm.iter().map(|v| *v != [0.0; 3]).collect();
+                let usable = Cow::Owned(nrm.iter().map(|v| *v != [0.0; 3]).collect());
                 flat.push(CueInput {
                     cue,
-                    values: nrm.into_iter().flatten().collect(),
+                    values: Cow::Owned(nrm.into_flattened()),
                     dim: 3,
                     usable,
                     kernel: kernel(chord(p.normal_hr_deg)),
@@ -313,9 +314,9 @@ pub fn segment_scan(img: &RangeImage, p: &MulticueParams) -> ScanSegmentation {
                 if let Some(lab) = &img.lab {
                     flat.push(CueInput {
                         cue,
-                        values: lab.iter().flatten().copied().collect(),
+                        values: Cow::Borrowed(lab.as_flattened()),
                         dim: 3,
-                        usable: valid.clone(),
+                        usable: Cow::Borrowed(&valid),
                         kernel: kernel(p.colour_hr),
                         max_dispersion: p.colour_max_dispersion,
                         veto: p.colour_veto,
@@ -370,11 +371,10 @@ fn shift<const D: usize>(
     k: Kernel,
     links: &cues::Links,
 ) -> Vec<u32> {
-    let v: Vec<[f32; D]> = flat
-        .chunks_exact(D)
-        .map(|c| std::array::from_fn(|i| c[i]))
-        .collect();
-    let f = meanshift::filter(img, &v, usable, k);
+    // A view of the flat values as arrays, not a copy.
+    let (v, rest) = flat.as_chunks::<D>();
+    debug_assert!(rest.is_empty());
+    let f = meanshift::filter(img, v, usable, k);
     meanshift::group(&f, usable, k, links).0
 }
 
