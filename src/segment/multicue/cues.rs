@@ -141,7 +141,7 @@ pub struct Links {
     /// Per pixel: right, left, down, up (the order the regrouping walks them).
     around: Vec<[Link; 4]>,
     /// Every link to a right neighbour that does not cross the seam, as the pair of pixels,
-    /// in pixel order: the later pixel's only link from the left.
+    /// in pixel order: the later pixel's only link from its left within the row.
     row_pairs: Vec<[u32; 2]>,
     /// Every other link once: down, and right across the seam; in pixel order.
     other_pairs: Vec<[u32; 2]>,
@@ -218,8 +218,8 @@ impl Links {
     }
 
     /// Every link along a row once, as `[i, j]`: `j` is `i`'s right neighbour, `j > i` (the
-    /// links across the seam are in [`Links::other_pairs`]), and no other pair has `j`
-    /// second. In pixel order. Each cue's grouping tests these pairs without visiting pixels
+    /// links across the seam are in [`Links::other_pairs`]), and no other of these pairs has
+    /// `j` second (its down and seam links may). In pixel order. Each cue's grouping tests these pairs without visiting pixels
     /// that have no return or copying their four links.
     #[inline]
     pub fn row_pairs(&self) -> &[[u32; 2]] {
