@@ -654,14 +654,7 @@ mod tests {
         let v = vec![[0.0f32]; rows * cols];
         let mut usable = vec![true; rows * cols];
         usable[0] = false;
-        let k = Kernel {
-            hs: 1,
-            hr: 1.0,
-            max_iter: 3,
-            merge: 0.5,
-            basin: 0,
-            basin_rows: 0,
-        };
+        let k = exact_3x3();
         let f = filter(&img, &v, &usable, k);
         let (lab, n) = group(&f, &usable, k, &Links::new(&img, STRICT));
         assert_eq!(n, 3);
@@ -693,14 +686,7 @@ mod tests {
         }
         let usable: Vec<bool> = (0..rows * cols).map(|i| img.valid(i)).collect();
         let v = vec![[0.0f32]; rows * cols];
-        let k = Kernel {
-            hs: 1,
-            hr: 1.0,
-            max_iter: 3,
-            merge: 0.5,
-            basin: 0,
-            basin_rows: 0,
-        };
+        let k = exact_3x3();
         let f = filter(&img, &v, &usable, k);
         let run = |max_gap_px| {
             let jump = Jump {
@@ -721,6 +707,19 @@ mod tests {
         assert_eq!((bridged[4], bridged[8], bridged[12]), (0, 0, 0));
         for r in 1..rows {
             assert_eq!(bridged[r * cols + 5], bridged[5]);
+        }
+    }
+
+    /// The exact filter (no basins) with a 3 × 3 window, bandwidth 1, three moves at most,
+    /// filtered values within 0.5 joining.
+    fn exact_3x3() -> Kernel {
+        Kernel {
+            hs: 1,
+            hr: 1.0,
+            max_iter: 3,
+            merge: 0.5,
+            basin: 0,
+            basin_rows: 0,
         }
     }
 
@@ -752,14 +751,7 @@ mod tests {
             let f: Vec<[f32; 1]> = (0..img.len())
                 .map(|_| [(rng.u() * 3.0).floor() as f32 + 0.1 * rng.u() as f32])
                 .collect();
-            let k = Kernel {
-                hs: 1,
-                hr: 1.0,
-                max_iter: 3,
-                merge: 0.5,
-                basin: 0,
-                basin_rows: 0,
-            };
+            let k = exact_3x3();
             for max_gap_px in [0, 1, 2] {
                 let links = Links::new(
                     &img,
