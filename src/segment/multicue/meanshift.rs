@@ -74,6 +74,7 @@ pub fn filter<const D: usize>(
     // may hand its value to pixels of the rows below it in its band; bands are independent of
     // each other (and run in parallel), so the result does not depend on the thread count.
     let band = 1 + if k.basin > 0 { k.basin_rows } else { 0 };
+    let centres = Centres::new(k);
     out.par_chunks_mut(cols * band)
         .enumerate()
         .for_each(|(b, chunk)| {
@@ -88,7 +89,7 @@ pub fn filter<const D: usize>(
                     if !usable[i] || taken[lr * cols + c] {
                         continue;
                     }
-                    let (y, ext) = window(img, values, usable, k, (r, c), &mut path);
+                    let (y, ext) = window(img, values, usable, (k, &centres), (r, c), &mut path);
                     chunk[lr * cols + c] = y;
                     if k.basin == 0 {
                         continue;
@@ -140,7 +141,7 @@ fn window<const D: usize>(
     img: &RangeImage,
     values: &[[f32; D]],
     usable: &[bool],
-    k: Kernel,
+    (k, centres): (Kernel, &Centres),
     (r, c): (usize, usize),
     path: &mut Vec<([f32; D], f32, f32)>,
 ) -> ([f32; D], [isize; 4]) {
@@ -150,15 +151,15 @@ fn window<const D: usize>(
     let side = 2 * k.hs + 1;
     let (rows, cols) = (img.rows as isize, img.cols as isize);
     let mut y = values[r * img.cols + c];
-    // Window centre as an offset from the pixel, in pixels.
+    // Window centre as an offset from the pixel, in pixels, and its rounding.
     let (mut yr, mut yc) = (0.0f32, 0.0f32);
+    let (mut cr, mut cc) = (0isize, 0isize);
     path.clear();
     let mut ext = [isize::MAX, isize::MIN, isize::MAX, isize::MIN];
     for _ in 0..k.max_iter {
         if k.basin > 0 {
             path.push((y, yr, yc));
         }
-        let (cr, cc) = (round(yr), round(yc));
         ext = extend(ext, (cr, cc));
         let mut acc = [0.0f32; D];
         // Offsets are whole pixels: their sums are kept as integers (exact, as the f32 sums
@@ -200,14 +201,20 @@ fn window<const D: usize>(
                 }
             }
         }
-        let sums = (sr as f32, sc as f32, n);
-        if !shift_window(&mut y, (&mut yr, &mut yc), acc, sums, stop_v) {
+        if n == 0 {
+            break;
+        }
+        let sums = (sr as f32, sc as f32, centres.inv(n));
+        let go = shift_window(&mut y, (&mut yr, &mut yc), acc, sums, stop_v);
+        // The rounding of the new centre (`yr`, `yc`: the same products).
+        (cr, cc) = (centres.of(sr, n), centres.of(sc, n));
+        if !go {
             break;
         }
     }
     if k.basin > 0 {
         path.push((y, yr, yc));
-        ext = extend(ext, (round(yr), round(yc)));
+        ext = extend(ext, (cr, cc));
     }
     (y, ext)
 }
@@ -281,21 +288,75 @@ fn round(x: f32) -> isize {
     }
 }
 
-/// Moves a window to the mean of the `n` pixels it took (value sums `acc`, offset sums `sr`,
-/// `sc`): `y` and its centre `(yr, yc)` are updated. False when the window should stop: it took
-/// nothing, or it moved less than `stop_v` (squared, in value) and half a pixel.
+/// The rounded centre offsets of a window's moves, and the reciprocals of its pixel counts,
+/// from tables. A window's new centre offset is `round(s · (1/n))` (f32) of the whole offset
+/// sum `s` of the `n` pixels it took; per move, the conversions to and from integers and
+/// the division that computed it lay on the path from one move's sums to the next move's
+/// pixels (a seventh of the filter's time, `perf`). The tables hold the same expressions,
+/// evaluated once for every count and every sum a window can reach (`max_iter` moves of at
+/// most `hs` pixels), so the same values.
+struct Centres {
+    /// `1/n` for `n` in `0..=side²` (`n = 0` is never read).
+    inv: Vec<f32>,
+    /// Sums `-reach..=reach` are tabulated; others are computed.
+    reach: isize,
+    /// Row `n`: `round(s · (1/n))` for `s` in `-reach..=reach`.
+    rounded: Vec<i16>,
+}
+
+impl Centres {
+    fn new(k: Kernel) -> Self {
+        let side2 = (2 * k.hs + 1) * (2 * k.hs + 1);
+        let inv: Vec<f32> = (0..=side2).map(|n| 1.0 / n as f32).collect();
+        // After m moves the centre lies within m·hs of the pixel, so the offsets a move takes
+        // lie within (m + 1)·hs and their sum within n times that. The table is bounded (64 Ki
+        // entries); sums beyond it are computed.
+        let bound = side2
+            .saturating_mul(k.max_iter.saturating_add(1))
+            .saturating_mul(k.hs);
+        let fits = ((1 << 16) / (side2 + 1)).saturating_sub(1) / 2;
+        let reach = bound.min(fits) as isize;
+        let mut rounded = Vec::with_capacity((side2 + 1) * (2 * reach as usize + 1));
+        for &f in &inv {
+            rounded.extend((-reach..=reach).map(|s| round(s as f32 * f) as i16));
+        }
+        Centres {
+            inv,
+            reach,
+            rounded,
+        }
+    }
+
+    /// `1/n` (f32).
+    #[inline]
+    fn inv(&self, n: u32) -> f32 {
+        self.inv[n as usize]
+    }
+
+    /// `round(s · (1/n))`, `n` in `1..=side²`.
+    #[inline]
+    fn of(&self, s: isize, n: u32) -> isize {
+        if s.abs() <= self.reach {
+            let w = 2 * self.reach + 1;
+            self.rounded[(n as isize * w + s + self.reach) as usize] as isize
+        } else {
+            round(s as f32 * self.inv(n))
+        }
+    }
+}
+
+/// Moves a window to the mean of the pixels it took (value sums `acc`, offset sums `sr`,
+/// `sc`, `inv` one over their count, at least one): `y` and its centre `(yr, yc)` are
+/// updated. False when the window should stop: it moved less than `stop_v` (squared, in
+/// value) and half a pixel.
 #[inline]
 fn shift_window<const D: usize>(
     y: &mut [f32; D],
     (yr, yc): (&mut f32, &mut f32),
     acc: [f32; D],
-    (sr, sc, n): (f32, f32, u32),
+    (sr, sc, inv): (f32, f32, f32),
     stop_v: f32,
 ) -> bool {
-    if n == 0 {
-        return false;
-    }
-    let inv = 1.0 / n as f32;
     let ny = acc.map(|v| v * inv);
     let (nr, nc) = (sr * inv, sc * inv);
     let moved = d2(&ny, y);
@@ -442,7 +503,11 @@ mod tests {
                         (sr, sc, n) = (sr + dr as f32, sc + dc as f32, n + 1);
                     }
                 }
-                if !shift_window(&mut y, (&mut yr, &mut yc), acc, (sr, sc, n), stop_v) {
+                if n == 0 {
+                    break;
+                }
+                let inv = 1.0 / n as f32;
+                if !shift_window(&mut y, (&mut yr, &mut yc), acc, (sr, sc, inv), stop_v) {
                     break;
                 }
             }
@@ -487,6 +552,34 @@ mod tests {
         xs.push(f32::NAN);
         for x in xs {
             assert_eq!(round(x), x.round() as isize, "x = {x:e}");
+        }
+    }
+
+    #[test]
+    fn centres_are_the_rounded_products_of_sum_and_reciprocal() {
+        // Every count and every sum inside each table and a margin beyond it (computed
+        // there), for small and large kernels (a large one's table is cut at 64 Ki entries).
+        for (hs, max_iter) in [(1, 5), (1, 1), (2, 5), (3, 20), (32, 5)] {
+            let k = Kernel {
+                hs,
+                hr: 1.0,
+                max_iter,
+                merge: 0.5,
+                basin: 0,
+                basin_rows: 0,
+            };
+            let c = Centres::new(k);
+            let side2 = ((2 * hs + 1) * (2 * hs + 1)) as u32;
+            assert!(c.reach > 0, "hs {hs}: no table");
+            assert!(c.rounded.len() <= 1 << 16);
+            for n in 1..=side2 {
+                let inv = 1.0 / n as f32;
+                assert_eq!(c.inv(n).to_bits(), inv.to_bits(), "1/{n}");
+                for s in -c.reach - 40..=c.reach + 40 {
+                    let want = (s as f32 * inv).round() as isize;
+                    assert_eq!(c.of(s, n), want, "hs {hs}: round({s} / {n})");
+                }
+            }
         }
     }
 
