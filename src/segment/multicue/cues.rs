@@ -30,7 +30,10 @@ fn same_surface_cs(a: f32, b: f32, [cos, sin]: [f32; 2], tan_theta: f32) -> bool
     // farther is a coin toss on a smooth surface (that branch was a third of the normals'
     // simulated mispredicts). For finite ranges, as the image's are, the same pair as
     // choosing by `a >= b`.
-    let (d1, d2) = (a.max(b), a.min(b));
+    // Written as the selects x86's `maxss` / `minss` compute, not `f32::max` / `min`,
+    // whose NaN rule costs a mask and a blend per pair.
+    let d1 = if a > b { a } else { b };
+    let d2 = if a < b { a } else { b };
     let den = d1 - d2 * cos;
     den <= 0.0 || d2 * sin >= tan_theta * den
 }
