@@ -27,11 +27,10 @@ pub fn same_surface(a: f32, b: f32, alpha: f32, tan_theta: f32) -> bool {
 #[inline]
 fn same_surface_cs(a: f32, b: f32, [cos, sin]: [f32; 2], tan_theta: f32) -> bool {
     // The farther and the nearer return without a branch: which of two neighbours is
-    // farther is a coin toss on a smooth surface (that branch was a third of the normals'
+    // farther is a coin toss on a smooth surface (that branch was half of the normals'
     // simulated mispredicts). For finite ranges, as the image's are, the same pair as
-    // choosing by `a >= b`.
-    // Written as the selects x86's `maxss` / `minss` compute, not `f32::max` / `min`,
-    // whose NaN rule costs a mask and a blend per pair.
+    // choosing by `a >= b`. Written as the selects x86's `maxss` / `minss` compute, not as
+    // `f32::max` / `min`, whose NaN rule costs a mask and a blend per pair.
     let d1 = if a > b { a } else { b };
     let d2 = if a < b { a } else { b };
     let den = d1 - d2 * cos;

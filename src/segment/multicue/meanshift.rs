@@ -292,7 +292,7 @@ fn round(x: f32) -> isize {
 /// from tables. A window's new centre offset is `round(s · (1/n))` (f32) of the whole offset
 /// sum `s` of the `n` pixels it took; per move, the conversions to and from integers and
 /// the division that computed it lay on the path from one move's sums to the next move's
-/// pixels (a seventh of the filter's time, `perf`). The tables hold the same expressions,
+/// pixels (about a seventh of the filter's time, `perf`). The tables hold the same expressions,
 /// evaluated once for every count and every sum a window can reach (`max_iter` moves of at
 /// most `hs` pixels), so the same values.
 struct Centres {
@@ -316,8 +316,11 @@ impl Centres {
             .saturating_mul(k.hs);
         let fits = ((1 << 16) / (side2 + 1)).saturating_sub(1) / 2;
         let reach = bound.min(fits) as isize;
-        let mut rounded = Vec::with_capacity((side2 + 1) * (2 * reach as usize + 1));
-        for &f in &inv {
+        let w = 2 * reach as usize + 1;
+        // Row 0 (no pixel taken: the window stops) is never read.
+        let mut rounded = vec![0i16; w];
+        rounded.reserve(side2 * w);
+        for &f in &inv[1..] {
             rounded.extend((-reach..=reach).map(|s| round(s as f32 * f) as i16));
         }
         Centres {
