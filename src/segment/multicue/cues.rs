@@ -144,8 +144,10 @@ pub type Link = Option<(u32, u8)>;
 pub struct Links {
     /// The surface test, tabulated far enough for the normals' smoothing too.
     pub test: SurfaceTest,
-    /// Per pixel: right, left, down, up (the order the regrouping walks them).
-    around: Vec<[Link; 4]>,
+    /// Per pixel: right, left, down, up (the order the regrouping walks them), each packed
+    /// ([`pack`]): half the memory of four [`Link`]s, which every pixel's links are written
+    /// to and read from.
+    around: Vec<[u32; 4]>,
     /// Every link to a right neighbour that does not cross the seam, as the pair of pixels,
     /// in pixel order: the later pixel's only link from its left within the row.
     row_pairs: Vec<[u32; 2]>,
@@ -166,7 +168,14 @@ impl Links {
                 .collect()
         };
         let (right_cs, down_cs) = (steps(0, 1), steps(1, 0));
-        let mut around = vec![[None; 4]; img.len()];
+        // Images hold at most 2²⁸ pixels (`RangeImage`'s constructors refuse larger ones) and
+        // `max_gap_px` is at most 8 (`MulticueParams::validate`): links pack into 32 bits.
+        assert!(
+            img.len() <= super::image::MAX_PIXELS && reach < 16,
+            "neighbour links: {} pixels, {reach} steps: too many to pack",
+            img.len()
+        );
+        let mut around = vec![[NO_LINK; 4]; img.len()];
         let mut row_pairs = Vec::with_capacity(img.valid_count());
         let mut other_pairs = Vec::with_capacity(img.valid_count());
         for r in 0..rows {
@@ -189,8 +198,8 @@ impl Links {
                 };
                 if let Some((j, k)) = right {
                     if same_surface_cs(rho, img.range[j], right_cs[k - 1], test.tan_theta) {
-                        around[i][0] = Some((j as u32, k as u8));
-                        around[j][1] = Some((i as u32, k as u8));
+                        around[i][0] = pack(j, k);
+                        around[j][1] = pack(i, k);
                         if j > i {
                             row_pairs.push([i as u32, j as u32]);
                         } else {
@@ -208,8 +217,8 @@ impl Links {
                 };
                 if let Some((j, k)) = down {
                     if same_surface_cs(rho, img.range[j], down_cs[k - 1], test.tan_theta) {
-                        around[i][2] = Some((j as u32, k as u8));
-                        around[j][3] = Some((i as u32, k as u8));
+                        around[i][2] = pack(j, k);
+                        around[j][3] = pack(i, k);
                         other_pairs.push([i as u32, j as u32]);
                     }
                 }
@@ -242,9 +251,18 @@ impl Links {
     /// The linked neighbours of pixel `i`: right, left, down, up.
     #[inline]
     pub fn around(&self, i: usize) -> [Link; 4] {
-        self.around[i]
+        self.around[i].map(|l| (l != NO_LINK).then_some((l >> 4, (l & 15) as u8)))
     }
 }
+
+/// A packed link: the pixel in the upper 28 bits, the steps in the lower 4.
+#[inline]
+fn pack(j: usize, k: usize) -> u32 {
+    (j as u32) << 4 | k as u32
+}
+
+/// No link, packed: no link has 0 steps. (An array of them is zeroed memory.)
+const NO_LINK: u32 = 0;
 
 /// Unit normals per pixel (zero where none can be computed), oriented towards the sensor.
 /// `window_m` is the paper's `D`; `links` hold the surface test ([`same_surface`]).

@@ -36,6 +36,16 @@ pub enum ImageError {
         /// The limit.
         max: usize,
     },
+    /// More pixels than an image may have ([`MAX_PIXELS`]).
+    #[error("scan image of {rows} × {cols} pixels is too large (at most {max} pixels)")]
+    TooLarge {
+        /// Rows.
+        rows: usize,
+        /// Columns.
+        cols: usize,
+        /// The limit.
+        max: usize,
+    },
     /// Colour given for a different number of points.
     #[error("{colours} colours for {points} points")]
     Colour {
@@ -48,6 +58,21 @@ pub enum ImageError {
 
 /// No point in a pixel.
 pub const NONE: u32 = u32::MAX;
+
+/// Most pixels an image may have: 2²⁸ (a 128-ring sensor's scan of 2 M columns), so that a
+/// pixel's index packs into 28 bits ([`super::cues::Links`]).
+pub const MAX_PIXELS: usize = 1 << 28;
+
+/// `rows × cols`, or [`ImageError::TooLarge`].
+fn pixels(rows: usize, cols: usize) -> Result<usize, ImageError> {
+    rows.checked_mul(cols)
+        .filter(|&n| n <= MAX_PIXELS)
+        .ok_or(ImageError::TooLarge {
+            rows,
+            cols,
+            max: MAX_PIXELS,
+        })
+}
 
 /// A range image: `rows × cols` pixels, row-major.
 #[derive(Debug, Clone)]
@@ -160,7 +185,7 @@ impl RangeImage {
         lab: Option<&[[f32; 3]]>,
         order: Order,
     ) -> Result<Self, ImageError> {
-        if rows == 0 || cols == 0 || rows.checked_mul(cols) != Some(xyz.len()) {
+        if rows == 0 || cols == 0 || pixels(rows, cols)? != xyz.len() {
             return Err(ImageError::Layout {
                 rows,
                 cols,
@@ -256,7 +281,7 @@ impl RangeImage {
             }
         }
         let rows = cuts.len() + 1;
-        let n = rows * cols;
+        let n = pixels(rows, cols)?;
         let mut img = RangeImage {
             rows,
             cols,
@@ -474,6 +499,21 @@ pub(crate) mod tests {
         assert!(matches!(
             RangeImage::organised(0, 0, &[], None, Order::RowMajor),
             Err(ImageError::Layout { .. })
+        ));
+        // Too many pixels (or rows × columns beyond usize): an error, before any allocation.
+        for (rows, cols) in [(1 << 14, (1 << 14) + 1), (usize::MAX, 2)] {
+            assert!(matches!(
+                RangeImage::organised(rows, cols, &pts, None, Order::RowMajor),
+                Err(ImageError::TooLarge { .. })
+            ));
+        }
+        assert!(
+            RangeImage::organised(1 << 14, 1 << 14, &pts, None, Order::RowMajor)
+                .is_err_and(|e| matches!(e, ImageError::Layout { .. }))
+        );
+        assert!(matches!(
+            RangeImage::spherical(&pts, None, 1 << 20, Rings::Uniform(1 << 9)),
+            Err(ImageError::TooLarge { .. })
         ));
         let nan = vec![[f32::NAN; 3]; 6];
         assert!(matches!(
