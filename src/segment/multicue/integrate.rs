@@ -81,7 +81,7 @@ impl Ord for Cand {
 /// Integrates the cues' segmentations of `img`.
 pub fn integrate(
     img: &RangeImage,
-    cues: &mut [CueSegments],
+    cues: &[CueSegments],
     rules: Rules,
     links: &Links,
 ) -> Integrated {
@@ -137,9 +137,6 @@ pub fn integrate(
                 m.px[from..].sort_unstable();
                 m.span.push((from as u32, (m.px.len() - from) as u32));
                 let piece = m.get(id);
-                for &p in piece {
-                    cues[c.cue].labels[p as usize] = id;
-                }
                 heap.push(Cand {
                     coverage: coverage(img, piece),
                     cue: c.cue,

@@ -336,13 +336,15 @@ pub fn segment_scan(img: &RangeImage, p: &MulticueParams) -> ScanSegmentation {
         .collect();
     let t_shift = t.elapsed().as_secs_f64();
     let t = Instant::now();
-    let mut segs: Vec<CueSegments> = flat
+    // The cues' labels go into the integration (which reads them) and come back out for
+    // `cue_labels`, not copied.
+    let segs: Vec<CueSegments> = flat
         .iter()
-        .zip(&labels)
+        .zip(labels)
         .map(|(c, l)| CueSegments {
             values: &c.values,
             dim: c.dim,
-            labels: l.clone(),
+            labels: l,
             max_dispersion: c.max_dispersion,
             veto: c.veto,
         })
@@ -351,13 +353,17 @@ pub fn segment_scan(img: &RangeImage, p: &MulticueParams) -> ScanSegmentation {
         min_coverage: p.min_coverage_m,
         min_pixels: p.min_points,
     };
-    let mut integrated = integrate::integrate(img, &mut segs, rules, &links);
+    let mut integrated = integrate::integrate(img, &segs, rules, &links);
     let t_int = t.elapsed().as_secs_f64();
     let pixel_labels = std::mem::take(&mut integrated.labels);
     ScanSegmentation {
         segments: integrated.segments,
         pixel_labels,
-        cue_labels: flat.iter().map(|f| f.cue).zip(labels).collect(),
+        cue_labels: flat
+            .iter()
+            .map(|f| f.cue)
+            .zip(segs.into_iter().map(|s| s.labels))
+            .collect(),
         integrated,
         seconds: [t_cues, t_shift, t_int],
     }
