@@ -364,7 +364,7 @@ mod tests {
         let vc = vec![0.0f32; n];
         let lb: Vec<u32> = (0..n).map(|i| if i % cols < 6 { 1 } else { 2 }).collect();
         let lc: Vec<u32> = (0..n).map(|i| if i % cols >= 4 { 1 } else { 0 }).collect();
-        let mut cues = vec![
+        let cues = vec![
             cue(&va, vec![1; n], 1.0, false),
             cue(&vb, lb, 1.0, false),
             cue(&vc, lc, 1.0, false),
@@ -374,7 +374,7 @@ mod tests {
             min_pixels: 2,
         };
         let jump = STRICT;
-        let out = integrate(&img, &mut cues, rules, &Links::new(&img, jump));
+        let out = integrate(&img, &cues, rules, &Links::new(&img, jump));
         assert_eq!(out.segments, 2);
         assert_eq!(out.rejected, 1);
         assert!(out.regrouped >= 1);
@@ -391,12 +391,12 @@ mod tests {
     fn small_segments_end_the_integration() {
         let img = image(2, 4);
         let v = vec![0.0f32; 8];
-        let mut cues = vec![cue(&v, vec![1, 1, 1, 1, 2, 2, 3, 3], 1.0, false)];
+        let cues = vec![cue(&v, vec![1, 1, 1, 1, 2, 2, 3, 3], 1.0, false)];
         let rules = Rules {
             min_coverage: 25.0,
             min_pixels: 1,
         };
-        let out = integrate(&img, &mut cues, rules, &Links::new(&img, STRICT));
+        let out = integrate(&img, &cues, rules, &Links::new(&img, STRICT));
         assert_eq!(out.segments, 1);
         assert_eq!(out.labels, vec![1, 1, 1, 1, 0, 0, 0, 0]);
     }
@@ -414,7 +414,7 @@ mod tests {
             .collect();
         let lc: Vec<u32> = (0..n).map(|i| if i % cols < 5 { 1 } else { 2 }).collect();
         let run = |veto: bool| {
-            let mut cues = vec![
+            let cues = vec![
                 cue(&vn, vec![1; n], 1.0, false),
                 cue(&vc, lc.clone(), 10.0, veto),
             ];
@@ -422,7 +422,7 @@ mod tests {
                 min_coverage: 1.0,
                 min_pixels: 2,
             };
-            integrate(&img, &mut cues, rules, &Links::new(&img, STRICT))
+            integrate(&img, &cues, rules, &Links::new(&img, STRICT))
         };
         // As the paper: the plane is accepted whole, the colours' segments lose their pixels.
         let paper = run(false);

@@ -269,11 +269,10 @@ impl<const D: usize> Window<'_, D> {
         let mut acc = [0.0f32; D];
         let (mut sr, mut sc, mut n) = (0isize, 0isize, 0u32);
         for dr in dr0..dr0 + side as isize {
-            let vs = &self.values[at..at + side];
-            for t in 0..side {
-                if within(d2(&vs[t], y), self.hr2) {
+            for (t, v) in self.values[at..at + side].iter().enumerate() {
+                if within(d2(v, y), self.hr2) {
                     for q in 0..D {
-                        acc[q] += vs[t][q];
+                        acc[q] += v[q];
                     }
                     sr += dr;
                     sc += dc0 + t as isize;
