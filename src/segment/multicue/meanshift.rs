@@ -74,7 +74,7 @@ pub fn filter<const D: usize>(
     // What the windows read: the values, and infinity where a pixel is not usable. A window's
     // value is a mean of usable (finite) values, so such a pixel lies infinitely far from it
     // and fails the bandwidth test: the windows take the same pixels without reading
-    // `usable`, one test and one unpredictable branch fewer per window pixel.
+    // `usable`, a load and a test fewer per window pixel.
     debug_assert!(values
         .iter()
         .zip(usable)
