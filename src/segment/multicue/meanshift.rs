@@ -134,7 +134,9 @@ pub fn filter<const D: usize>(
                                 continue;
                             }
                             let (dr, dc) = ((lr2 - lr) as f32, c2 as f32 - c as f32);
-                            let passed = path.iter().any(|&(py, pr, pc)| {
+                            // From the end back: a pixel that passes mostly passes near the
+                            // window's end, so the search stops sooner. Same answer.
+                            let passed = path.iter().rev().any(|&(py, pr, pc)| {
                                 (dr - pr).abs() <= 1.0
                                     && (dc - pc).abs() <= 1.0
                                     && d2(&values[j], &py) < near
