@@ -238,7 +238,19 @@ impl Members {
 
 /// Σ range over the pixels (eq. 6 up to the constant angular step).
 fn coverage(img: &RangeImage, px: &[u32]) -> f32 {
-    px.iter().map(|&p| img.range[p as usize]).sum()
+    // In eight lanes: one f32 sum is a chain of additions, each waiting for the last (a
+    // quarter of the integration's time, `perf`); eight chains run side by side. The sum
+    // differs from the sequential one in its last bits only.
+    let mut lanes = [0.0f32; 8];
+    let chunks = px.chunks_exact(8);
+    let rest = chunks.remainder();
+    for c in chunks {
+        for (s, &p) in lanes.iter_mut().zip(c) {
+            *s += img.range[p as usize];
+        }
+    }
+    let tail: f32 = rest.iter().map(|&p| img.range[p as usize]).sum();
+    lanes.iter().sum::<f32>() + tail
 }
 
 /// RMS distance of the pixels' values from their mean.
