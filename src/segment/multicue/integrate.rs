@@ -452,6 +452,26 @@ mod tests {
         }
     }
 
+    /// The coverage in lanes is the plain sum up to rounding, whatever the number of pixels
+    /// left over after the lanes (each pixel counted once).
+    #[test]
+    fn coverage_is_the_sum_of_the_ranges() {
+        let mut img = image(40, 50);
+        let mut rng = crate::rng::Rng(4);
+        img.range
+            .iter_mut()
+            .for_each(|r| *r = 1.0 + 79.0 * rng.u() as f32);
+        for len in (0..=40).chain([999, 2000]) {
+            let px: Vec<u32> = (0..len).map(|_| (rng.u() * 2000.0) as u32).collect();
+            let want: f64 = px.iter().map(|&p| img.range[p as usize] as f64).sum();
+            let got = coverage(&img, &px) as f64;
+            assert!(
+                (got - want).abs() <= 1e-5 * want.max(1.0),
+                "{len}: {got} vs {want}"
+            );
+        }
+    }
+
     /// The dispersion with the dimension as a constant (1, 3) or not (2, 4) is the RMS
     /// distance from the mean summed the plain way, bit for bit.
     #[test]
