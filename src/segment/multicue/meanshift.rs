@@ -8,8 +8,10 @@
 //! Basins of attraction (`basin`, as in Comaniciu & Meer's faster filter): a pixel not filtered
 //! yet — up to `basin` columns to the right of a window's start in its row, or up to `basin`
 //! columns either side in the `basin_rows` rows below — that the window passed within a pixel
-//! of while its value lay within `hr / 2` of the pixel's, takes that window's end value and
-//! starts no window of its own. Rows are filtered top to bottom in bands of `1 + basin_rows`
+//! of while its value lay within `basin_hr · hr` of the pixel's, takes that window's end value
+//! and starts no window of its own (the default `basin_hr` is ½; 1 is the rule of the
+//! high-speedup filter in Comaniciu & Meer's EDISON code, where points within the window's
+//! bandwidth during its traversal take its mode, and its medium-speedup filter uses `√½`). Rows are filtered top to bottom in bands of `1 + basin_rows`
 //! rows, and a window hands its value on only inside its band; bands are independent, so
 //! results do not depend on the thread count. A pixel that starts its own window gets the same
 //! value as without basins.
@@ -38,6 +40,9 @@ pub struct Kernel {
     /// Basins also reach this many rows below a window's start (within its band of
     /// `1 + basin_rows` rows, see [`filter`]); 0: the window's own row only.
     pub basin_rows: usize,
+    /// Basins: a pixel's value must lie within this share of `hr` of the window's value where
+    /// the window passed it (in `(0, 1]`).
+    pub basin_hr: f32,
     /// Grouping: filtered values within `merge · hr` join.
     pub merge: f32,
 }
@@ -68,7 +73,7 @@ pub fn filter<const D: usize>(
     usable: &[bool],
     k: Kernel,
 ) -> Vec<[f32; D]> {
-    let near = k.hr * k.hr * 0.25;
+    let near = (k.basin_hr * k.hr) * (k.basin_hr * k.hr);
     let mut out = values.to_vec();
     let cols = img.cols;
     // What the windows read: the values, and infinity where a pixel is not usable. A window's
@@ -540,7 +545,7 @@ mod tests {
             if k.basin == 0 {
                 continue;
             }
-            let near = k.hr * k.hr * 0.25;
+            let near = (k.basin_hr * k.hr) * (k.basin_hr * k.hr);
             let last = (r + k.basin_rows)
                 .min(img.rows - 1)
                 .min(r - r % band + band - 1);
@@ -591,6 +596,7 @@ mod tests {
                 merge: 0.5,
                 basin: 0,
                 basin_rows: 0,
+                basin_hr: 1.0,
             };
             let c = Centres::new(k);
             let side2 = ((2 * hs + 1) * (2 * hs + 1)) as u32;
@@ -626,8 +632,12 @@ mod tests {
             // Window widths 3 and 5 (unrolled) and 9; the exact filter and basins reaching
             // 1 or 3 columns and 0 to 2 rows down.
             let basins = [(0, 0), (1, 0), (3, 1), (2, 2)];
-            for (hs, (basin, basin_rows)) in
-                [1, 2, 4].into_iter().flat_map(|h| basins.map(|b| (h, b)))
+            // Basin shares of the bandwidth: the default 1 and a half.
+            let shares = [1.0, 0.5];
+            for (hs, (basin, basin_rows), basin_hr) in [1, 2, 4]
+                .into_iter()
+                .flat_map(|h| basins.map(|b| (h, b)))
+                .flat_map(|(h, b)| shares.map(|f| (h, b, f)))
             {
                 let k = Kernel {
                     hs,
@@ -636,13 +646,15 @@ mod tests {
                     merge: 0.5,
                     basin,
                     basin_rows,
+                    basin_hr,
                 };
                 let got = filter(&img, &v, &usable, k);
                 let want = filter_reference(&img, &v, &usable, k);
                 let bits = |a: &[[f32; 3]]| -> Vec<[u32; 3]> {
                     a.iter().map(|x| x.map(f32::to_bits)).collect()
                 };
-                let at = format!("wraps {wraps}, hs {hs}, basin {basin}/{basin_rows}");
+                let at =
+                    format!("wraps {wraps}, hs {hs}, basin {basin}/{basin_rows}, share {basin_hr}");
                 assert_eq!(bits(&got), bits(&want), "{at}");
                 assert!(got != v, "the filter moved nothing: {at}");
             }
@@ -663,17 +675,21 @@ mod tests {
         let usable = vec![true; v.len()];
         let img = flat_image(rows, cols);
         // Two moves: windows end apart, so a value taken from a neighbour shows.
-        let kernel = |basin, basin_rows| Kernel {
+        let kernel = |basin, basin_rows, basin_hr| Kernel {
             hs: 2,
             hr: 1.5,
             max_iter: 2,
             merge: 0.5,
             basin,
             basin_rows,
+            basin_hr,
         };
-        let exact = filter(&img, &v, &usable, kernel(0, 0));
-        for (basin, basin_rows) in [(2, 0), (1, 1), (2, 2)] {
-            let fast = filter(&img, &v, &usable, kernel(basin, basin_rows));
+        let exact = filter(&img, &v, &usable, kernel(0, 0, 1.0));
+        let cases = [(2, 0), (1, 1), (2, 2)];
+        for ((basin, basin_rows), basin_hr) in
+            cases.into_iter().flat_map(|b| [1.0, 0.5].map(|f| (b, f)))
+        {
+            let fast = filter(&img, &v, &usable, kernel(basin, basin_rows, basin_hr));
             let band = 1 + basin_rows;
             let (mut adopted, mut from_above) = (0, 0);
             for i in 0..v.len() {
@@ -723,7 +739,7 @@ mod tests {
                 .num_threads(1)
                 .build()
                 .unwrap();
-            let k = kernel(basin, basin_rows);
+            let k = kernel(basin, basin_rows, basin_hr);
             assert_eq!(one.install(|| filter(&img, &v, &usable, k)), fast);
         }
     }
@@ -747,6 +763,7 @@ mod tests {
             merge: 0.5,
             basin: 0,
             basin_rows: 0,
+            basin_hr: 1.0,
         };
         let f = filter(&img, &v, &usable, k);
         let jump = STRICT;
@@ -837,6 +854,7 @@ mod tests {
             merge: 0.5,
             basin: 0,
             basin_rows: 0,
+            basin_hr: 1.0,
         }
     }
 
