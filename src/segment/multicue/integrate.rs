@@ -94,11 +94,7 @@ pub fn integrate(
         for s in 1..m.span.len() {
             let px = m.get(s as u32);
             if !px.is_empty() {
-                heap.push(Cand {
-                    coverage: coverage(img, px),
-                    cue: k,
-                    seg: s as u32,
-                });
+                push(&mut heap, coverage(img, px), k, s as u32, rules);
             }
         }
     }
@@ -137,11 +133,7 @@ pub fn integrate(
                 m.px[from..].sort_unstable();
                 m.span.push((from as u32, (m.px.len() - from) as u32));
                 let piece = m.get(id);
-                heap.push(Cand {
-                    coverage: coverage(img, piece),
-                    cue: c.cue,
-                    seg: id,
-                });
+                push(&mut heap, coverage(img, piece), c.cue, id, rules);
             }
             m.live += left.len();
             m.compact_if_sparse();
@@ -166,6 +158,16 @@ pub fn integrate(
     }
     out.labels = owner;
     out
+}
+
+/// Pushes a candidate, unless it covers less than `rules.min_coverage`: the integration stops
+/// at the first such candidate it pops, so one never changes what it does (the same test as
+/// the stop's).
+#[allow(clippy::neg_cmp_op_on_partial_ord)]
+fn push(heap: &mut BinaryHeap<Cand>, coverage: f32, cue: usize, seg: u32, rules: Rules) {
+    if !(coverage < rules.min_coverage) {
+        heap.push(Cand { coverage, cue, seg });
+    }
 }
 
 /// The pixels of each segment of one cue, in ascending order, as ranges of one list (a
@@ -411,6 +413,23 @@ mod tests {
         let out = integrate(&img, &cues, rules, &Links::new(&img, STRICT));
         assert_eq!(out.segments, 1);
         assert_eq!(out.labels, vec![1, 1, 1, 1, 0, 0, 0, 0]);
+        // A coverage of exactly the minimum still counts (ranges of 10 m: 20 for a pair), for
+        // a segment as it is and for a piece regrouped after losing pixels: a second cue's
+        // segment over pixels 3-6 loses 3 and 4 to the first cue's larger segment.
+        let rules = Rules {
+            min_coverage: 20.0,
+            ..rules
+        };
+        let pair = vec![cue(&v, vec![1, 1, 1, 1, 1, 2, 2, 0], 1.0, false)];
+        let remainder = vec![
+            cue(&v, vec![1, 1, 1, 1, 1, 0, 0, 0], 1.0, false),
+            cue(&v, vec![0, 0, 0, 1, 1, 1, 1, 0], 1.0, false),
+        ];
+        for (cues, regrouped) in [(pair, 0), (remainder, 1)] {
+            let out = integrate(&img, &cues, rules, &Links::new(&img, STRICT));
+            assert_eq!(out.labels, vec![1, 1, 1, 1, 1, 2, 2, 0]);
+            assert_eq!(out.regrouped, regrouped);
+        }
     }
 
     #[test]
