@@ -22,7 +22,11 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 RUNS=${1:-5}
 W=${BENCH_DIR:-/tmp/tessera-bench-meanshift}
-rm -rf "$W"; mkdir -p "$W/src" "$W/out"
+# Only a directory this script made (it holds the marker) is ever removed.
+if [ -e "$W" ] && [ ! -e "$W/.tessera-bench-meanshift" ]; then
+  echo "$W exists and was not made by this script; set BENCH_DIR to a new directory"; exit 1
+fi
+rm -rf "$W"; mkdir -p "$W/src" "$W/out"; touch "$W/.tessera-bench-meanshift"
 python3 -c 'import numpy, mcap, rosbags' \
   || { echo "needs: pip install numpy mcap mcap-ros1-support mcap-ros2-support rosbags"; exit 1; }
 python3 -c 'import cv2' 2> /dev/null \
