@@ -156,6 +156,10 @@ pub struct RecordLayout {
     /// carry none. Filled only when a stage asks for it ([`crate::stages::Stage::needs_intensity_scales`]);
     /// empty otherwise.
     pub intensity_p99: std::sync::Arc<Vec<u16>>,
+    /// Heights are in another unit than x and y by this factor (z in x/y units = z × this;
+    /// [`crate::io::crs::UnitsReport::z_to_xy`]): the stages' coordinates
+    /// ([`RecordLayout::stage_xyz`]) apply it, the records are left as they are. 1 mostly.
+    pub z_to_xy: f64,
 }
 
 impl RecordLayout {
@@ -189,6 +193,7 @@ impl RecordLayout {
             transforms,
             extras: Vec::new(),
             intensity_p99: Default::default(),
+            z_to_xy: 1.0,
         }
     }
 
@@ -211,6 +216,14 @@ impl RecordLayout {
             self.transforms.y.direct(r(4)),
             self.transforms.z.direct(r(8)),
         ]
+    }
+
+    /// x, y, z of one record as the stages see them: z in the unit of x and y
+    /// ([`RecordLayout::z_to_xy`]).
+    #[inline]
+    pub fn stage_xyz(&self, rec: &[u8]) -> [f64; 3] {
+        let [x, y, z] = self.xyz(rec);
+        [x, y, z * self.z_to_xy]
     }
 
     /// The classification code stored in a record.

@@ -264,47 +264,199 @@ fn formats_6_to_10_carry_ogc_wkt() {
     }
 }
 
-/// A unit tessera cannot know, a geographic CRS, and x/y and z in different units are errors
-/// naming the file (never a silent metre run); `crs.units` states the unit instead.
+fn run_default(input: &Path, out: &Path, extra: &[&str]) -> std::process::Output {
+    tessera()
+        .arg("run")
+        .arg(input)
+        .arg("--out")
+        .arg(out)
+        .args(extra.iter().flat_map(|s| ["--set", s]))
+        .output()
+        .unwrap()
+}
+
+fn summary(out: &Path) -> serde_json::Value {
+    serde_json::from_slice(&std::fs::read(out.join("summary.json")).unwrap()).unwrap()
+}
+
+/// CRS records tessera cannot use, or that contradict the coordinates, are warnings naming the
+/// file and the unit assumed (laspy and PDAL read such files); coordinates that really are
+/// longitudes/latitudes are refused with the CRS found and how to reproject; `crs.units`
+/// states the unit instead.
 #[test]
-fn unknown_geographic_and_mixed_units_are_refused() {
+fn unusable_crs_records_warn_and_degrees_are_refused() {
     let Some(src) = common::data_file("isprs-filtertest/samp71-utm.laz") else {
         return;
     };
     let d = tempfile::tempdir().unwrap();
-    let cases: [(&str, Vec<las::Vlr>, &str); 3] = [
+    // Runs, with a warning naming the file and what was left out.
+    let warned: [(&str, Vec<las::Vlr>, &str); 2] = [
         (
             "unknown.laz",
             geokeys(&[(1024, 1), (3076, 9999)], &[]),
-            "ProjLinearUnitsGeoKey 9999",
+            "ProjLinearUnitsGeoKey holds 9999, which is not a length unit",
         ),
         (
-            "geographic.laz",
+            "geographic-record.laz",
             geokeys(&[(1024, 2), (2048, 4326)], &[]),
-            "longitude/latitude",
-        ),
-        (
-            "mixed.laz",
-            geokeys(&[(1024, 1), (3076, 9003), (4099, 9001)], &[]),
-            "but z is in metre",
+            "are no longitudes/latitudes",
         ),
     ];
-    for (name, crs, needle) in cases {
+    for (name, crs, needle) in warned {
         let p = d.path().join(name);
         to_unit(&src, &p, 1.0, 0.01, &crs);
         let out = d.path().join(format!("{name}.out"));
-        let o = tessera()
-            .args(["-q", "run"])
-            .arg(&p)
-            .arg("--out")
-            .arg(&out)
-            .output()
-            .unwrap();
+        let o = run_default(&p, &out, &[]);
         let err = String::from_utf8_lossy(&o.stderr);
-        assert_eq!(o.status.code(), Some(1), "{name}: {err}");
-        assert!(err.contains(name) && err.contains(needle), "{name}: {err}");
-        assert!(common::tiles_in(&out).is_empty(), "{name}: tiles written");
-        let s = run(&p, &out, &["crs.units=\"metre\""]);
-        assert_eq!(s["units"]["source"], "crs.units", "{name}");
+        assert!(o.status.success(), "{name}: {err}");
+        let warning = err
+            .lines()
+            .find(|l| l.contains("WARN") && l.contains(needle));
+        assert!(
+            warning.is_some_and(|w| w.contains(name) && w.contains("metre")),
+            "{name}: {err}"
+        );
+        assert_eq!(summary(&out)["units"]["unit"]["name"], "metre", "{name}");
     }
+    // Degrees: refused, naming the CRS and the UTM zone to reproject to (samp71's metres
+    // divided by 10^5 read as 4.96° E, 54.22° N: zone 31N).
+    let p = d.path().join("degrees.laz");
+    to_unit(
+        &src,
+        &p,
+        1e5,
+        1e-7,
+        &geokeys(&[(1024, 2), (2048, 4326)], &[]),
+    );
+    let out = d.path().join("degrees.out");
+    let o = run_default(&p, &out, &[]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    for needle in [
+        "degrees.laz",
+        "longitude/latitude",
+        "EPSG:4326",
+        "EPSG:32631",
+        "reproject",
+    ] {
+        assert!(err.contains(needle), "{needle}: {err}");
+    }
+    assert!(common::tiles_in(&out).is_empty(), "tiles written");
+    let o = run_default(&p, &out, &["crs.units=\"metre\""]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(summary(&out)["units"]["source"], "crs.units");
+}
+
+/// An OGC WKT record of two quote characters (as some writers leave an empty CRS) is a
+/// warning, and the file runs in metres.
+#[test]
+fn an_empty_wkt_record_is_a_warning() {
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("quotes.las");
+    let mut b = las::Builder::from((1, 4));
+    b.point_format = las::point::Format::new(6).unwrap();
+    b.vlrs.push(las::Vlr {
+        user_id: "LASF_Projection".into(),
+        record_id: 2112,
+        description: String::new(),
+        data: b"\"\"".to_vec(),
+    });
+    let mut w = las::Writer::from_path(&p, b.into_header().unwrap()).unwrap();
+    for i in 0..400 {
+        w.write_point(las::Point {
+            x: 1000.0 + (i % 20) as f64,
+            y: 2000.0 + (i / 20) as f64,
+            z: 10.0,
+            gps_time: Some(0.0),
+            ..Default::default()
+        })
+        .unwrap();
+    }
+    w.close().unwrap();
+    let out = d.path().join("out");
+    let o = run_default(&p, &out, &[]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(
+        err.lines().any(|l| l.contains("WARN")
+            && l.contains("quotes.las")
+            && l.contains("WKT record is empty")),
+        "{err}"
+    );
+    let s = summary(&out);
+    assert_eq!(s["points_out"], 400);
+    assert_eq!(s["units"]["unit"]["name"], "metre");
+}
+
+/// x/y in US survey feet and heights in metres: the stages see heights in feet, so the
+/// classification is that of the same file with its heights in feet (within 0.5 % of the
+/// points), and the outputs keep the heights in metres, bit for bit.
+#[test]
+fn heights_in_another_unit_than_xy_are_scaled_for_the_stages() {
+    let Some(src) = common::data_file("isprs-filtertest/samp11-utm.laz") else {
+        return;
+    };
+    let d = tempfile::tempdir().unwrap();
+    let feet = d.path().join("feet.laz");
+    to_feet(&src, &feet, &[(1024, 1), (3072, 2903)]);
+    // The same points with heights back in metres (at the same 1 mm scale) and a vertical
+    // unit key saying so.
+    let mixed = d.path().join("mixed.laz");
+    {
+        let mut r = las::Reader::from_path(&feet).unwrap();
+        let mut b = las::Builder::from(r.header().clone());
+        b.vlrs
+            .retain(|v| !v.is_crs() && !las::laz::is_laszip_vlr(v));
+        b.vlrs
+            .extend(geokeys(&[(1024, 1), (3072, 2903), (4099, 9001)], &[]));
+        let mut w = las::Writer::from_path(&mixed, b.into_header().unwrap()).unwrap();
+        for p in r.read_all().unwrap().points() {
+            let mut p = p.unwrap();
+            p.z *= US_FOOT;
+            w.write_point(p).unwrap();
+        }
+        w.close().unwrap();
+    }
+    let sf = run(&feet, &d.path().join("ft"), &[]);
+    let sx = run(&mixed, &d.path().join("mixed"), &[]);
+    let u = &sx["units"];
+    assert_eq!(u["unit"]["name"], "US survey foot", "{u}");
+    assert_eq!(u["vertical_unit"]["name"], "metre", "{u}");
+    assert!(
+        (u["z_to_xy"].as_f64().unwrap() - 1.0 / US_FOOT).abs() < 1e-9,
+        "{u}"
+    );
+    assert_eq!(sf["units"]["z_to_xy"], 1.0);
+    // Keyed by x, y in feet and z in centimetres.
+    let key = |out: &Path, z_metres: f64| {
+        let mut m = HashMap::new();
+        for t in common::tiles_in(out) {
+            let (xyz, class) = common::read_las(&t).unwrap();
+            for (p, c) in xyz.iter().zip(class) {
+                let k = [
+                    (p[0] * 1000.0).round() as i64,
+                    (p[1] * 1000.0).round() as i64,
+                    (p[2] * z_metres * 100.0).round() as i64,
+                ];
+                m.insert(k, (c, p[2]));
+            }
+        }
+        m
+    };
+    let a = key(&d.path().join("ft"), US_FOOT);
+    let b = key(&d.path().join("mixed"), 1.0);
+    assert_eq!(sf["points_out"], sx["points_out"]);
+    let n = a.len().max(1);
+    let differ = a
+        .iter()
+        .filter(|(k, (c, _))| b.get(*k).is_none_or(|(d, _)| (*c == 2) != (*d == 2)))
+        .count();
+    assert!(
+        differ * 200 <= n,
+        "{differ} of {n} points change ground class between heights in feet and in metres"
+    );
+    // The outputs' heights are the input's metres.
+    let min_z = b.values().map(|v| v.1).fold(f64::INFINITY, f64::min);
+    let min_ft = a.values().map(|v| v.1).fold(f64::INFINITY, f64::min);
+    assert!((min_z - min_ft * US_FOOT).abs() < 0.002, "{min_z} {min_ft}");
 }

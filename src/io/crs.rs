@@ -80,6 +80,12 @@ impl LinearUnit {
 pub struct UnitsReport {
     /// The inputs' linear unit.
     pub unit: LinearUnit,
+    /// The heights' unit when it differs from that of x and y (PDAL's Autzen files: x/y in
+    /// metres, NAVD88 heights in US survey feet); `None` when they agree.
+    pub vertical_unit: Option<LinearUnit>,
+    /// Heights are multiplied by this for the stages, so that they see z in the unit of x
+    /// and y (1 when the units agree); the records keep the input's heights.
+    pub z_to_xy: f64,
     /// Where it came from: the CRS records of the inputs, `crs.units`, or the metre assumed
     /// for inputs without a CRS.
     pub source: String,
@@ -96,93 +102,56 @@ pub struct CrsInfo {
     pub vertical: Option<LinearUnit>,
     /// The coordinates are longitude/latitude (degrees), not projected.
     pub geographic: bool,
+    /// The CRS is geocentric (Earth-centred x, y, z in metres: z is not "up").
+    pub geocentric: bool,
+    /// The CRS's name, when the record gives one (for messages).
+    pub name: Option<String>,
     /// EPSG code of the horizontal CRS, when known.
     pub epsg: Option<u16>,
     /// The header's OGC WKT record, when it has one.
     pub wkt: Option<String>,
     /// Where the unit was read, for the run report.
     pub source: String,
+    /// What was odd but harmless in the records (each a sentence for a warning): a record
+    /// tessera could not use, a key that contradicts the others. The unit is then read from
+    /// the records that remain, else left unknown.
+    pub notes: Vec<String>,
 }
 
 impl CrsInfo {
-    /// Reads the CRS records of `header`. Err: records that cannot be read, with the reason.
-    pub fn of_header(header: &las::Header) -> Result<CrsInfo, String> {
+    /// Reads the CRS records of `header`. Records that cannot be read or contradict
+    /// themselves do not make the file unreadable (laspy and PDAL read such files): they are
+    /// left out, with a note ([`CrsInfo::notes`]), and the unit comes from what remains.
+    pub fn of_header(header: &las::Header) -> CrsInfo {
+        let mut notes = Vec::new();
         if let Some(bytes) = header.get_wkt_crs_bytes() {
             let text = String::from_utf8_lossy(bytes);
             let text = text.trim_end_matches('\0').trim();
-            if !text.is_empty() {
-                let mut info = from_wkt(text).map_err(|e| format!("OGC WKT record: {e}"))?;
-                info.wkt = Some(text.to_string());
-                info.source = "OGC WKT record".into();
-                return Ok(info);
-            }
-        }
-        let keys = match header.get_geotiff_crs() {
-            Ok(Some(k)) => k,
-            Ok(None) => return Ok(CrsInfo::default()),
-            Err(e) => return Err(format!("GeoTIFF key records: {e}")),
-        };
-        let u16_key = |id: u16| {
-            keys.entries
-                .iter()
-                .find(|e| e.id == id)
-                .and_then(|e| match e.data {
-                    GeoTiffData::U16(v) => Some(v),
-                    _ => None,
-                })
-        };
-        let double_key = |id: u16| {
-            keys.entries
-                .iter()
-                .find(|e| e.id == id)
-                .and_then(|e| match &e.data {
-                    GeoTiffData::Doubles(v) => v.first().copied(),
-                    _ => None,
-                })
-        };
-        let mut info = CrsInfo {
-            source: "GeoTIFF keys".into(),
-            ..CrsInfo::default()
-        };
-        // GTModelTypeGeoKey: 1 projected, 2 geographic, 3 geocentric.
-        let model = u16_key(1024);
-        info.geographic = model == Some(2);
-        let projected = u16_key(3072).filter(|c| (1024..32767).contains(c));
-        let geographic = u16_key(2048).filter(|c| (1024..32767).contains(c));
-        info.epsg = if info.geographic {
-            geographic
-        } else {
-            projected
-        };
-        if !info.geographic {
-            info.horizontal = match u16_key(3076) {
-                Some(32767) => double_key(3077).filter(|m| *m > 0.0).map(|m| LinearUnit {
-                    name: format!("user-defined unit of {m} m"),
-                    metres: m,
-                }),
-                Some(code) => Some(LinearUnit::from_epsg(code).ok_or_else(|| {
-                    format!(
-                        "GeoTIFF ProjLinearUnitsGeoKey {code} is not a length unit tessera knows"
-                    )
-                })?),
-                None => None,
-            };
-            if info.horizontal.is_some() {
-                info.source = "GeoTIFF ProjLinearUnitsGeoKey".into();
-            } else if let Some(code) = projected {
-                if let Some(def) = crs_definitions::from_code(code) {
-                    info.horizontal = from_wkt(def.wkt).ok().and_then(|w| w.horizontal);
-                    info.source = format!("unit of EPSG:{code} (GeoTIFF ProjectedCSTypeGeoKey)");
+            // Some writers leave an empty WKT as `""`: no CRS, said with two characters.
+            let empty = text.is_empty() || text.chars().all(|c| c == '"' || c.is_whitespace());
+            if empty {
+                notes.push("its OGC WKT record is empty".to_string());
+            } else {
+                match from_wkt(text) {
+                    Ok(mut info) => {
+                        info.wkt = Some(text.to_string());
+                        info.source = "OGC WKT record".into();
+                        return info;
+                    }
+                    Err(e) => notes.push(format!("its OGC WKT record cannot be read ({e})")),
                 }
             }
         }
-        info.vertical = match u16_key(4099) {
-            Some(code) => Some(LinearUnit::from_epsg(code).ok_or_else(|| {
-                format!("GeoTIFF VerticalUnitsGeoKey {code} is not a length unit tessera knows")
-            })?),
-            None => None,
+        let mut info = match header.get_geotiff_crs() {
+            Ok(Some(keys)) => from_geotiff(&keys, &mut notes),
+            Ok(None) => CrsInfo::default(),
+            Err(e) => {
+                notes.push(format!("its GeoTIFF key records cannot be read ({e})"));
+                CrsInfo::default()
+            }
         };
-        Ok(info)
+        info.notes = notes;
+        info
     }
 
     /// An OGC WKT for a LAS 1.4 output of this CRS: the header's own, else the EPSG code's.
@@ -195,13 +164,90 @@ impl CrsInfo {
     }
 }
 
+/// Units and EPSG code from GeoTIFF keys. A unit key holding a code that is no length unit
+/// (LAS 1.3 waveform samples put the projection's code, 32632, in ProjLinearUnitsGeoKey) is
+/// left out with a note, and the unit is read from the projected CRS's code instead.
+fn from_geotiff(keys: &las::crs::GeoTiffCrs, notes: &mut Vec<String>) -> CrsInfo {
+    let u16_key = |id: u16| {
+        keys.entries
+            .iter()
+            .find(|e| e.id == id)
+            .and_then(|e| match e.data {
+                GeoTiffData::U16(v) => Some(v),
+                _ => None,
+            })
+    };
+    let double_key = |id: u16| {
+        keys.entries
+            .iter()
+            .find(|e| e.id == id)
+            .and_then(|e| match &e.data {
+                GeoTiffData::Doubles(v) => v.first().copied(),
+                _ => None,
+            })
+    };
+    let mut info = CrsInfo {
+        source: "GeoTIFF keys".into(),
+        ..CrsInfo::default()
+    };
+    // GTModelTypeGeoKey: 1 projected, 2 geographic, 3 geocentric.
+    let model = u16_key(1024);
+    info.geographic = model == Some(2);
+    info.geocentric = model == Some(3);
+    let projected = u16_key(3072).filter(|c| (1024..32767).contains(c));
+    let geographic = u16_key(2048).filter(|c| (1024..32767).contains(c));
+    info.epsg = if info.geographic {
+        geographic
+    } else {
+        projected
+    };
+    if !info.geographic {
+        info.horizontal = match u16_key(3076) {
+            Some(32767) => double_key(3077).filter(|m| *m > 0.0).map(|m| LinearUnit {
+                name: format!("user-defined unit of {m} m"),
+                metres: m,
+            }),
+            Some(code) => {
+                let unit = LinearUnit::from_epsg(code);
+                if unit.is_none() {
+                    notes.push(format!(
+                        "its GeoTIFF ProjLinearUnitsGeoKey holds {code}, which is not a length unit (left out)"
+                    ));
+                }
+                unit
+            }
+            None => None,
+        };
+        if info.horizontal.is_some() {
+            info.source = "GeoTIFF ProjLinearUnitsGeoKey".into();
+        } else if let Some(code) = projected {
+            if let Some(def) = crs_definitions::from_code(code) {
+                info.horizontal = from_wkt(def.wkt).ok().and_then(|w| w.horizontal);
+                info.source = format!("unit of EPSG:{code} (GeoTIFF ProjectedCSTypeGeoKey)");
+            }
+        }
+    }
+    info.vertical = match u16_key(4099) {
+        Some(code) => {
+            let unit = LinearUnit::from_epsg(code);
+            if unit.is_none() {
+                notes.push(format!(
+                    "its GeoTIFF VerticalUnitsGeoKey holds {code}, which is not a length unit (left out)"
+                ));
+            }
+            unit
+        }
+        None => None,
+    };
+    info
+}
+
 /// Metres per coordinate unit of a file: its CRS's horizontal unit, else 1 (metres, also for
 /// a CRS that cannot be read: the pipeline reports those; tools that only need a length
 /// scale, such as `thin` and `eval`, go on in metres).
 pub fn metres_per_unit(header: &las::Header) -> f64 {
     CrsInfo::of_header(header)
-        .ok()
-        .and_then(|c| c.horizontal)
+        .horizontal
         .map_or(1.0, |u| u.metres)
 }
 
@@ -351,6 +397,24 @@ const GEOGRAPHIC: &[&str] = &[
     "GEODETICCRS",
     "GEOCCS",
 ];
+
+/// A geodetic CRS element that is geocentric: WKT 1's `GEOCCS`, or a WKT 2 geodetic CRS
+/// whose coordinate system is Cartesian.
+fn is_geocentric(crs: &Node) -> bool {
+    crs.key == "GEOCCS"
+        || (["GEODCRS", "GEODETICCRS"].contains(&crs.key.as_str())
+            && crs.child(&["CS"]).is_some_and(|cs| {
+                matches!(cs.args.first(), Some(Arg::Text(t)) if t.eq_ignore_ascii_case("cartesian"))
+            }))
+}
+
+/// The name of a CRS element (its first, quoted argument).
+fn name_of(crs: &Node) -> Option<String> {
+    match crs.args.first()? {
+        Arg::Text(t) if !t.is_empty() => Some(t.clone()),
+        _ => None,
+    }
+}
 const VERTICAL: &[&str] = &["VERT_CS", "VERTCS", "VERTCRS", "VERTICALCRS"];
 const UNITS: &[&str] = &["UNIT", "LENGTHUNIT"];
 
@@ -388,9 +452,16 @@ fn from_wkt(text: &str) -> Result<CrsInfo, String> {
     } else {
         (Some(&root), None)
     };
-    let mut info = CrsInfo::default();
+    let mut info = CrsInfo {
+        name: name_of(&root),
+        ..CrsInfo::default()
+    };
     if let Some(h) = horizontal {
-        if GEOGRAPHIC.contains(&h.key.as_str()) {
+        if is_geocentric(h) {
+            // Geocentric coordinates are metres (the unit is the CRS's own).
+            info.geocentric = true;
+            info.horizontal = unit_of(h);
+        } else if GEOGRAPHIC.contains(&h.key.as_str()) {
             info.geographic = true;
         } else if PROJECTED.contains(&h.key.as_str()) {
             info.horizontal = unit_of(h);

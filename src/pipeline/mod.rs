@@ -157,6 +157,7 @@ fn run_scoped(
         cfg.pipeline.threads,
     )?;
     let mut plan = RunPlan::resolve(cfg, stages, &staged.paths, &work_base)?;
+    plan.set.layout.z_to_xy = units.z_to_xy;
     let Observers { sink, classes } = observers(&mut plan, cfg, scope.is_some(), &out)?;
     // The journal of finished cells: an interrupted run of the same fingerprint is resumed.
     let mut fingerprint = journal::Fingerprint::of(cfg, &inputs, &plan.grid);

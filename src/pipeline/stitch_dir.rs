@@ -55,11 +55,12 @@ pub fn stitch_plan_dir(dir: &Path, overwrite: bool) -> Result<Summary> {
     }
     let cfg = Config::load(Some(&PlanFile::config_path(dir)), &[])?;
     // The tasks ran in the inputs' unit (see `units`): so does their stitching.
-    let (cfg, _) = super::units::for_inputs(&cfg, &plan.inputs)?;
+    let (cfg, units) = super::units::for_inputs(&cfg, &plan.inputs)?;
     let stages = cfg.build_stages()?;
     let mut out = OutputDir::open(dir, overwrite)?;
     let work = out.stage().to_path_buf();
     let mut run = RunPlan::resolve(&cfg, &stages, &plan.inputs, &work)?;
+    run.set.layout.z_to_xy = units.z_to_xy;
     let sink = run
         .report_raster
         .filter(|_| cfg.output.report)

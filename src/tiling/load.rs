@@ -77,13 +77,13 @@ pub fn load_tile(
         xyz.push(p);
     };
     job.core_part.for_each(rl, BLOCK_POINTS, |id, rec| {
-        push(id, rec, layout.xyz(rec));
+        push(id, rec, layout.stage_xyz(rec));
         Ok(())
     })?;
     let mut thinned = 0;
     match far {
         None => job.buf_part.for_each(rl, BLOCK_POINTS, |id, rec| {
-            push(id, rec, layout.xyz(rec));
+            push(id, rec, layout.stage_xyz(rec));
             Ok(())
         })?,
         Some(f) => {
@@ -104,7 +104,7 @@ pub fn load_tile(
             };
             let (mut seq, mut whole) = (0u64, 0u64);
             job.buf_part.for_each(rl, BLOCK_POINTS, |id, rec| {
-                let p = layout.xyz(rec);
+                let p = layout.stage_xyz(rec);
                 let k = key(p);
                 if in_cells(near, k) {
                     push(id, rec, p);
@@ -119,7 +119,7 @@ pub fn load_tile(
                 // Only cells `undecided` opened take points (near cells were never offered).
                 let (mut seq, mut whole) = (0u64, 0u64);
                 job.buf_part.for_each(rl, BLOCK_POINTS, |id, rec| {
-                    let p = layout.xyz(rec);
+                    let p = layout.stage_xyz(rec);
                     let k = key(p);
                     if in_cells(near, k) {
                         whole += 1;
@@ -162,7 +162,7 @@ pub fn load_tile(
                 let rec = &rep_records[r * rl..(r + 1) * rl];
                 records[write * rl..(write + 1) * rl].copy_from_slice(rec);
                 ids[write] = id;
-                xyz[write] = layout.xyz(rec);
+                xyz[write] = layout.stage_xyz(rec);
             }
         }
     }
