@@ -34,7 +34,11 @@ fn main() -> ExitCode {
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(level)),
+                // Dependencies speak only of errors: tessera says what matters to the user
+                // itself, once (the `las` crate warned about every tile's CRS record).
+                .unwrap_or_else(|_| {
+                    tracing_subscriber::EnvFilter::new(format!("{level},las=error,laz=error"))
+                }),
         )
         .with_writer(std::io::stderr)
         .with_target(false)

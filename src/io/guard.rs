@@ -32,16 +32,24 @@ fn u64_at(b: &[u8], o: usize) -> u64 {
 }
 
 /// [`check_las_structure`] for a file whose length is not known yet.
-pub fn check_path(path: &Path) -> Result<()> {
+pub fn check_path(path: &Path) -> Result<Structure> {
     let len = std::fs::metadata(path)
         .map_err(|e| Error::io(path, e))?
         .len();
     check_las_structure(path, len)
 }
 
+/// What [`check_las_structure`] found odd but readable.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Structure {
+    /// The header announces more VLRs than lie before the point data (PDAL's
+    /// `bad_vlr_count.las`): how many do. Readers are given this count.
+    pub vlrs_present: Option<u32>,
+}
+
 /// Checks the sizes `path` states (header, VLRs, EVLRs, LASzip record, LAZ chunk table)
 /// against its length `file_len`. Call before `las::Reader` opens the file.
-pub fn check_las_structure(path: &Path, file_len: u64) -> Result<()> {
+pub fn check_las_structure(path: &Path, file_len: u64) -> Result<Structure> {
     let bad = |m: String| Err(Error::bad_input(path, m));
     let mut f = crate::io::files::open_regular(path)?;
     let mut h = [0u8; 375];
@@ -60,18 +68,19 @@ pub fn check_las_structure(path: &Path, file_len: u64) -> Result<()> {
             "header size {header_size} and point data offset {offset_to_points} do not fit a {file_len}-byte file"
         ));
     }
-    // VLRs lie between the header and the point data.
-    if n_vlrs.saturating_mul(VLR_HEADER) > offset_to_points - header_size {
-        return bad(format!(
-            "header announces {n_vlrs} VLRs, more than the {} bytes before the point data hold",
-            offset_to_points - header_size
-        ));
-    }
+    // VLRs lie between the header and the point data. A count larger than the VLRs there
+    // (the records end where the point data begins) is read as the count present, as PDAL
+    // and laspy do; a VLR that runs into the point data is corrupt.
+    let mut structure = Structure::default();
     let mut laszip: Option<Vec<u8>> = None;
     let mut at = header_size;
     for k in 0..n_vlrs {
         let mut v = [0u8; VLR_HEADER as usize];
-        if at + VLR_HEADER > offset_to_points || read_at(&mut f, at, &mut v).is_err() {
+        if at + VLR_HEADER > offset_to_points {
+            structure.vlrs_present = Some(k as u32);
+            break;
+        }
+        if read_at(&mut f, at, &mut v).is_err() {
             return bad(format!(
                 "VLR {k} of {n_vlrs} does not fit before the point data (byte {offset_to_points})"
             ));
@@ -128,9 +137,12 @@ pub fn check_las_structure(path: &Path, file_len: u64) -> Result<()> {
             return bad("point format is marked compressed but there is no LASzip VLR".into());
         };
         check_laszip(path, &vlr, record_len, format)?;
-        check_chunk_table(path, &mut f, offset_to_points, file_len, record_len, &vlr)?;
+        // LASzip 1.0's point-wise compression (compressor 1) has no chunks and no table.
+        if u16_at(&vlr, 0) != 1 {
+            check_chunk_table(path, &mut f, offset_to_points, file_len, record_len, &vlr)?;
+        }
     }
-    Ok(())
+    Ok(structure)
 }
 
 /// The LASzip VLR: items present, versions `laz` knows, and item sizes adding up to the
@@ -139,6 +151,19 @@ fn check_laszip(path: &Path, d: &[u8], record_len: u64, format: u8) -> Result<()
     let bad = |m: String| Err(Error::bad_input(path, format!("LASzip VLR: {m}")));
     if d.len() < 34 {
         return bad(format!("{} bytes, too short (34 at least)", d.len()));
+    }
+    // The fields a broken writer garbles first, named as such (not as the chunk table or
+    // the point count they would be mistaken for further on).
+    let (compressor, coder) = (u16_at(d, 0), u16_at(d, 2));
+    if !(1..=3).contains(&compressor) {
+        return bad(format!(
+            "compressor {compressor} is not one LASzip writes (1 point-wise, 2 point-wise chunked, 3 layered chunked)"
+        ));
+    }
+    if coder != 0 {
+        return bad(format!(
+            "coder {coder} is not one LASzip writes (0, arithmetic)"
+        ));
     }
     let n_items = usize::from(u16_at(d, 32));
     if n_items == 0 {
@@ -237,10 +262,8 @@ fn check_table_at(
             "claims {chunks} chunks, but its {data} bytes of compressed data hold at most {most} (every chunk begins with a raw {record_len}-byte point)"
         ));
     }
-    let chunk_size = u32_at(vlr, 12);
-    if chunk_size == 0 {
-        return bad("the LASzip VLR gives a chunk size of 0 points".into());
-    }
+    // A chunk size of 0 (LAStools' COPC files) is read as variable-size chunks, as laz-rs
+    // and LASzip read it: the table then gives each chunk's point count.
     // The entries (now that their count is bounded): `laz` allocates by the largest chunk's
     // point count. A compressed point takes at least a bit, so a chunk of `b` bytes holds at
     // most 8·b points (chunks up to 2^20 points always pass).
@@ -383,13 +406,26 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("evlr.las") && e.contains("EVLR 0"), "{e}");
+        // More VLRs announced than there are: read as the count present.
         let mut many = ok.clone();
         many[100..104].copy_from_slice(&u32::MAX.to_le_bytes());
         let p = write(d.path(), "vlrs.las", &many);
-        let e = check_las_structure(&p, many.len() as u64)
+        let s = check_las_structure(&p, many.len() as u64).unwrap();
+        assert_eq!(s.vlrs_present, Some(0));
+        // A VLR running into the point data is corrupt.
+        let mut into = ok.clone();
+        into[96..100].copy_from_slice(&(375u32 + 54).to_le_bytes());
+        into[100..104].copy_from_slice(&1u32.to_le_bytes());
+        into.splice(375..375, {
+            let mut v = vec![0u8; 54];
+            v[20..22].copy_from_slice(&100u16.to_le_bytes());
+            v
+        });
+        let p = write(d.path(), "into.las", &into);
+        let e = check_las_structure(&p, into.len() as u64)
             .unwrap_err()
             .to_string();
-        assert!(e.contains("VLRs"), "{e}");
+        assert!(e.contains("VLR 0 of 1 claims 100 bytes"), "{e}");
         let mut off = ok.clone();
         off[96..100].copy_from_slice(&u32::MAX.to_le_bytes());
         let p = write(d.path(), "off.las", &off);
@@ -404,6 +440,7 @@ mod tests {
         let d = tempfile::tempdir().unwrap();
         let p = d.path().join("x.laz");
         let mut v = vec![0u8; 34 + 6];
+        v[0..2].copy_from_slice(&2u16.to_le_bytes());
         v[32..34].copy_from_slice(&1u16.to_le_bytes());
         v[34..36].copy_from_slice(&6u16.to_le_bytes());
         v[36..38].copy_from_slice(&20u16.to_le_bytes());
@@ -423,5 +460,15 @@ mod tests {
             .unwrap_err()
             .to_string()
             .contains("version 9"));
+        // LASzip's own broken test files: a coder of 15, a compressor of 16.
+        for (at, value, says) in [(2, 15u16, "coder 15"), (0, 16, "compressor 16")] {
+            let mut bad = v.clone();
+            bad[at..at + 2].copy_from_slice(&value.to_le_bytes());
+            let e = check_laszip(&p, &bad, 20, 0).unwrap_err().to_string();
+            assert!(e.contains(says), "{e}");
+        }
+        let mut point_wise = v.clone();
+        point_wise[0..2].copy_from_slice(&1u16.to_le_bytes());
+        check_laszip(&p, &point_wise, 20, 0).unwrap();
     }
 }

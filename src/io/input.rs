@@ -38,7 +38,7 @@ const INTENSITY_SAMPLE: usize = 16_384;
 pub fn intensity_scales(files: &[InputFile]) -> Vec<u16> {
     use rayon::prelude::*;
     let p99 = |f: &InputFile| -> Result<u16> {
-        let mut r = Reader::from_path(&f.path).map_err(|e| Error::las(&f.path, e))?;
+        let mut r = open_reader(&f.path, None)?;
         let mut pd = PointDataBuilder::new().for_header(r.header()).build();
         r.fill_points(INTENSITY_SAMPLE as u64, &mut pd)
             .map_err(|e| Error::las(&f.path, e))?;
@@ -295,6 +295,15 @@ fn records_present(
             },
         });
     }
+    if point_wise(header) {
+        // One stream without a table: only the decoder can tell; a compressed point takes
+        // at least a bit.
+        return Ok(Present {
+            lo: 0,
+            hi: (file_len - start).saturating_mul(8),
+            likely: None,
+        });
+    }
     // LAZ: the chunk table at the end tells how many points and bytes really exist.
     let vlr = header.laz_vlr().map_err(|e| Error::las(path, e))?;
     let mut f = BufReader::new(crate::io::files::open_regular(path)?);
@@ -431,12 +440,68 @@ fn point_count(path: &Path, raw: &las::raw::Header, present: Present) -> Result<
     Ok(chosen)
 }
 
+/// A `las` reader of `path` that decodes LAZ sequentially: the header and the first points
+/// are all it is asked for, and the sequential decoder also reads LASzip 1.0's point-wise
+/// files, which the parallel one refuses.
+///
+/// `vlrs`: the number of VLRs to read instead of the header's (a header that announces more
+/// than there are, [`crate::io::guard::Structure::vlrs_present`]).
+fn open_reader(path: &Path, vlrs: Option<u32>) -> Result<Reader> {
+    let f = crate::io::files::open_regular(path)?;
+    let patch = vlrs.map(|n| (100u64, n.to_le_bytes()));
+    let f = BufReader::new(Patched {
+        inner: f,
+        pos: 0,
+        patch,
+    });
+    let options = las::ReaderOptions::default().with_laz_parallelism(las::LazParallelism::No);
+    Reader::with_options(f, options).map_err(|e| Error::las(path, e))
+}
+
+/// A file read with four bytes replaced (a header field corrected, the file left as it is).
+struct Patched {
+    inner: File,
+    pos: u64,
+    patch: Option<(u64, [u8; 4])>,
+}
+
+impl Read for Patched {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.inner.read(buf)?;
+        if let Some((at, bytes)) = self.patch {
+            for (k, b) in bytes.iter().enumerate() {
+                let p = at + k as u64;
+                if p >= self.pos && p < self.pos + n as u64 {
+                    buf[(p - self.pos) as usize] = *b;
+                }
+            }
+        }
+        self.pos += n as u64;
+        Ok(n)
+    }
+}
+
+impl Seek for Patched {
+    fn seek(&mut self, to: SeekFrom) -> std::io::Result<u64> {
+        self.pos = self.inner.seek(to)?;
+        Ok(self.pos)
+    }
+}
+
 /// Opens and validates one input.
 pub fn scan_file(path: &Path, index: usize) -> Result<InputFile> {
     let file_len = sniff(path)?;
-    crate::io::guard::check_las_structure(path, file_len)?;
-    let reader = Reader::from_path(path).map_err(|e| Error::las(path, e))?;
-    let header = reader.header().clone();
+    let structure = crate::io::guard::check_las_structure(path, file_len)?;
+    if let Some(k) = structure.vlrs_present {
+        crate::io::warn::warn_once(&format!("vlr-count:{}", path.display()), || {
+            format!(
+                "{}: the header announces more VLRs than the {k} before the point data; reading those {k}",
+                path.display()
+            )
+        });
+    }
+    let reader = open_reader(path, structure.vlrs_present)?;
+    let mut header = reader.header().clone();
     drop(reader);
     let t = header.transforms();
     for (axis, tr) in [("x", t.x), ("y", t.y), ("z", t.z)] {
@@ -458,31 +523,177 @@ pub fn scan_file(path: &Path, index: usize) -> Result<InputFile> {
     let points = point_count(path, &raw, present)?;
     let b = header.bounds();
     let vals = [b.min.x, b.min.y, b.min.z, b.max.x, b.max.y, b.max.z];
-    if points > 0 && (vals.iter().any(|v| !v.is_finite()) || b.min.x > b.max.x || b.min.y > b.max.y)
-    {
-        return Err(Error::bad_input(
-            path,
-            format!("invalid bounds in header: {vals:?}"),
-        ));
-    }
-    for v in header.all_vlrs() {
-        if v.user_id == crate::io::extra::USER_ID && v.record_id == crate::io::extra::RECORD_ID {
-            crate::io::extra::validate(&v.data, header.point_format().extra_bytes)
-                .map_err(|e| Error::bad_input(path, e))?;
+    let mut bounds = Rect {
+        x0: b.min.x,
+        y0: b.min.y,
+        x1: b.max.x,
+        y1: b.max.y,
+    };
+    let valid = !(vals.iter().any(|v| !v.is_finite()) || b.min.x > b.max.x || b.min.y > b.max.y);
+    if points > 0 {
+        let first = first_point(path, &header, &raw)?;
+        let within = |r: &Rect| {
+            first.is_none_or(|p| {
+                let probe = InputFile {
+                    path: path.to_path_buf(),
+                    index,
+                    points,
+                    bounds: *r,
+                    header: header.clone(),
+                };
+                InputFile::accepts(&probe.accepted(), p)
+            })
+        };
+        if !valid || !within(&bounds) {
+            // Wrong header bounds (laspy writes some: raw integers where coordinates belong)
+            // with intact points: readers that do not tile ignore them. The tiler needs true
+            // bounds to know when a tile is complete, so they are taken from the points.
+            bounds = bounds_from_points(path, &header, points)?;
+            let shown = if valid {
+                format!("x {} .. {}, y {} .. {}", b.min.x, b.max.x, b.min.y, b.max.y)
+            } else {
+                format!("{vals:?}")
+            };
+            crate::io::warn::warn_once(&format!("bounds:{}", path.display()), || {
+                format!(
+                    "{}: the header's bounds ({shown}) do not hold its points{}; bounds taken from the points instead: x {} .. {}, y {} .. {}",
+                    path.display(),
+                    first.map_or(String::new(), |p| format!(" (the first lies at {}, {})", p[0], p[1])),
+                    bounds.x0, bounds.x1, bounds.y0, bounds.y1
+                )
+            });
         }
+    }
+    let is_eb = |v: &las::Vlr| {
+        v.user_id == crate::io::extra::USER_ID && v.record_id == crate::io::extra::RECORD_ID
+    };
+    let broken = header
+        .all_vlrs()
+        .filter(|v| is_eb(v))
+        .find_map(|v| crate::io::extra::validate(&v.data, header.point_format().extra_bytes).err());
+    if let Some(e) = broken {
+        // The records are intact, only their description is wrong (lasR and PDAL read such
+        // files): the description is left out, so outputs carry the extra bytes undescribed
+        // rather than a descriptor readers refuse.
+        let mut b = las::Builder::from(header.clone());
+        b.vlrs.retain(|v| !is_eb(v));
+        b.evlrs.retain(|v| !is_eb(v));
+        header = b.into_header().map_err(|e| Error::las(path, e))?;
+        crate::io::warn::warn_once(&format!("extra-bytes:{}", path.display()), || {
+            format!(
+                "{}: {e}; the descriptors are left out, the records' extra bytes are read and kept as they are",
+                path.display()
+            )
+        });
     }
     Ok(InputFile {
         path: path.to_path_buf(),
         index,
         points,
-        bounds: Rect {
-            x0: b.min.x,
-            y0: b.min.y,
-            x1: b.max.x,
-            y1: b.max.y,
-        },
+        bounds,
         header,
     })
+}
+
+/// LASzip compressor 1: LASzip 1.0's point-wise compression, one stream without chunks and
+/// without a chunk table (laz-rs reads it sequentially).
+fn point_wise(header: &las::Header) -> bool {
+    header
+        .all_vlrs()
+        .find(|v| v.user_id == "laszip encoded" && v.record_id == 22204)
+        .is_some_and(|v| v.data.len() >= 2 && u16::from_le_bytes([v.data[0], v.data[1]]) == 1)
+}
+
+/// Where a file's first point lies, read without decoding: LAS records are raw, and LAZ
+/// stores the first point of each chunk raw (after the chunk table's offset, except in
+/// LASzip 1.0's point-wise files, which have none). `None` when the record cannot be read.
+fn first_point(
+    path: &Path,
+    header: &las::Header,
+    raw: &las::raw::Header,
+) -> Result<Option<[f64; 3]>> {
+    let mut at = u64::from(raw.offset_to_point_data);
+    if header.point_format().is_compressed && !point_wise(header) {
+        at += 8;
+    }
+    let mut f = crate::io::files::open_regular(path)?;
+    let mut rec = [0u8; 12];
+    if f.seek(SeekFrom::Start(at)).is_err() || f.read_exact(&mut rec).is_err() {
+        return Ok(None);
+    }
+    let i = |o: usize| i32::from_le_bytes([rec[o], rec[o + 1], rec[o + 2], rec[o + 3]]);
+    let t = header.transforms();
+    Ok(Some([t.x.direct(i(0)), t.y.direct(i(4)), t.z.direct(i(8))]))
+}
+
+/// The x/y bounds of a file's points, by one pass over them (for files whose header bounds
+/// are wrong). Kept per file for the process: the run, its unit check and its plan scan the
+/// same inputs.
+fn bounds_from_points(path: &Path, header: &las::Header, points: u64) -> Result<Rect> {
+    use std::collections::HashMap;
+    use std::sync::Mutex;
+    static KNOWN: Mutex<Option<HashMap<PathBuf, Rect>>> = Mutex::new(None);
+    let key = path.to_path_buf();
+    if let Some(r) = KNOWN
+        .lock()
+        .unwrap_or_else(|p| p.into_inner())
+        .get_or_insert_with(HashMap::new)
+        .get(&key)
+    {
+        return Ok(*r);
+    }
+    let layout = RecordLayout::new(*header.point_format(), *header.transforms());
+    let file = InputFile {
+        path: key.clone(),
+        index: 0,
+        points,
+        bounds: Rect {
+            x0: f64::NEG_INFINITY,
+            y0: f64::NEG_INFINITY,
+            x1: f64::INFINITY,
+            y1: f64::INFINITY,
+        },
+        header: header.clone(),
+    };
+    let mut r = Rect {
+        x0: f64::INFINITY,
+        y0: f64::INFINITY,
+        x1: f64::NEG_INFINITY,
+        y1: f64::NEG_INFINITY,
+    };
+    let mut bad: Option<(u64, [f64; 3])> = None;
+    read_file_chunks(
+        &file,
+        &layout,
+        1 << 16,
+        || None,
+        |first, data| {
+            for (k, rec) in data.raw_bytes().chunks_exact(layout.record_len).enumerate() {
+                let p = layout.xyz(rec);
+                if !p.iter().all(|v| v.is_finite()) {
+                    bad.get_or_insert((first + k as u64, p));
+                    continue;
+                }
+                r.x0 = r.x0.min(p[0]);
+                r.y0 = r.y0.min(p[1]);
+                r.x1 = r.x1.max(p[0]);
+                r.y1 = r.y1.max(p[1]);
+            }
+            Ok(())
+        },
+    )?;
+    if let Some((k, p)) = bad {
+        return Err(Error::bad_input(
+            path,
+            format!("point {k} at {p:?} is not finite"),
+        ));
+    }
+    KNOWN
+        .lock()
+        .unwrap_or_else(|p| p.into_inner())
+        .get_or_insert_with(HashMap::new)
+        .insert(key, r);
+    Ok(r)
 }
 
 fn base_format(mut f: Format) -> Format {
@@ -871,6 +1082,9 @@ struct LazChunks {
 fn laz_chunks(file: &InputFile) -> Result<Option<LazChunks>> {
     let header = &file.header;
     if !header.point_format().is_compressed {
+        return Ok(None);
+    }
+    if point_wise(header) {
         return Ok(None);
     }
     let path = &file.path;

@@ -13,6 +13,7 @@ pub mod mcap;
 pub mod output;
 pub mod pcd;
 pub mod perclass;
+pub mod warn;
 pub mod workspace;
 
 pub use input::{scan_inputs, InputFile, InputSet};

@@ -106,20 +106,23 @@ pub fn set_wkt(header: &mut las::Header, template: &las::Header) -> Result<()> {
         // The input's own WKT, without the GeoTIFF keys some writers add next to it.
         Some(w) if has_geotiff => Some(String::from_utf8_lossy(w).into_owned()),
         Some(_) => return Ok(()),
-        None if has_geotiff => crate::io::crs::CrsInfo::of_header(template)
-            .unwrap_or_default()
-            .output_wkt(),
+        None if has_geotiff => crate::io::crs::CrsInfo::of_header(template).output_wkt(),
         None => return Ok(()),
     };
     match wkt {
-        Some(wkt) => header
-            .set_wkt_crs(wkt.into_bytes())
-            .map_err(|e| Error::Config(format!("cannot write the OGC WKT record: {e}"))),
+        // Replaces the GeoTIFF keys copied from the template (the `las` crate would remove
+        // them too, but says so on the user's terminal for every tile).
+        Some(wkt) => {
+            header.remove_crs_vlrs();
+            header
+                .set_wkt_crs(wkt.into_bytes())
+                .map_err(|e| Error::Config(format!("cannot write the OGC WKT record: {e}")))
+        }
         None => {
-            tracing::warn!(
-                "the inputs' GeoTIFF CRS has no EPSG code tessera can convert to WKT: point format {} outputs keep the GeoTIFF keys",
-                header.point_format()
-            );
+            let format = header.point_format().to_u8().unwrap_or(255);
+            crate::io::warn::warn_once("geotiff-without-wkt", || {
+                format!("the inputs' GeoTIFF CRS has no EPSG code tessera can convert to WKT: outputs in point format {format} keep the GeoTIFF keys")
+            });
             Ok(())
         }
     }
