@@ -209,7 +209,10 @@ impl BudgetPlan {
             .max()
             .unwrap_or(0);
         let loading = far.map_or(0, |f| {
-            f.held.min(n_buf) * self.base_bytes_per_point as u64 + f.cells * FAR_CELL_BYTES
+            // Far cells are hash-map entries of the cells points fall in: no more than the
+            // buffer's points (a large tile of sparse data has many more cells than points).
+            f.held.min(n_buf) * self.base_bytes_per_point as u64
+                + f.cells.min(n_buf) * FAR_CELL_BYTES
         });
         n * self.base_bytes_per_point as u64 + stage.max(loading)
     }

@@ -36,6 +36,10 @@ pub struct TilingParams {
     pub buffer_m: f64,
     /// Smallest core edge quadtree splitting may produce, metres.
     pub min_tile_size_m: f64,
+    /// Tiles of sparse inputs grow until they are expected to hold this many points
+    /// ([`crate::tiling::grid::sparse_tile_size`]); 0 keeps `tile_size_m`.
+    #[serde(default)]
+    pub sparse_tile_points: u64,
     /// Thin the far part of tiles' buffers (see `tiling::FarThin`).
     pub thin_far_buffers: bool,
     /// Tiles keep every buffer point within this distance of their core, metres (beyond the

@@ -356,14 +356,18 @@ pub fn stage_context_m(context_m: f64, buffer_m: f64) -> f64 {
 /// `c` of one of those (in x and y). The test is a grid over `zone` whose cells holding a core
 /// point are widened by `c`: a superset of the points within `c` (Chebyshev) of a core
 /// point, reaching at most `c` plus two cells beyond them. Cells are `c / 8`, coarser only
-/// when the zone would need more than 2048 of them a side (≤ 4 M flags).
+/// when the zone would need more than 2048 of them a side (≤ 4 M flags) or many more cells
+/// than there are points.
 pub fn near_points(xyz: &[[f64; 3]], n_core: usize, zone: Rect, c: f64) -> Vec<bool> {
     let n_core = n_core.min(xyz.len());
     let side = (zone.x1 - zone.x0).max(zone.y1 - zone.y0);
     if n_core == 0 || c.is_nan() || c <= 0.0 || !side.is_finite() || side <= 0.0 {
         return (0..xyz.len()).map(|i| i < n_core).collect();
     }
-    let g = (c / 8.0).max(side / 2048.0);
+    // Few points in a large zone (sparse inputs get large tiles) also coarsen the cells:
+    // the grid never has many more cells than the tile has points.
+    let most = (4 * xyz.len() + 65_536) as f64;
+    let g = (c / 8.0).max(side / 2048.0).max(side / most.sqrt());
     let nx = ((zone.x1 - zone.x0) / g).ceil().max(1.0) as usize;
     let ny = ((zone.y1 - zone.y0) / g).ceil().max(1.0) as usize;
     let cell = |p: &[f64; 3]| -> Option<(usize, usize)> {

@@ -65,7 +65,14 @@ pub struct RegionPlan {
 }
 
 /// Plans `inputs` (LAS/LAZ files or directories) on `grid` into `tasks` tasks.
-pub fn plan_region(inputs: &[PathBuf], grid: Grid, tasks: usize) -> Result<RegionPlan> {
+/// The grid's tile size grows for sparse inputs as a run's does (`sparse_tile_points`,
+/// [`crate::tiling::grid::sparse_tile_size`]).
+pub fn plan_region(
+    inputs: &[PathBuf],
+    grid: Grid,
+    sparse_tile_points: u64,
+    tasks: usize,
+) -> Result<RegionPlan> {
     if tasks == 0 {
         return Err(Error::Config("plan: --tasks must be at least 1".into()));
     }
@@ -83,12 +90,25 @@ pub fn plan_region(inputs: &[PathBuf], grid: Grid, tasks: usize) -> Result<Regio
         .collect::<Result<Vec<PathBuf>>>()?;
     let mut cells: HashMap<(i64, i64), f64> = HashMap::new();
     let mut total = 0u64;
+    // (bounds, accepted region, points) of each input: the grid's size depends on them all.
+    let mut extents = Vec::with_capacity(paths.len());
     for (i, p) in paths.iter().enumerate() {
         let f = scan_file(p, i)?;
         total += f.points;
+        extents.push((f.bounds, f.accepted(), f.points));
+    }
+    let grid = Grid {
+        tile_size_m: crate::tiling::grid::sparse_tile_size(
+            grid.tile_size_m,
+            sparse_tile_points,
+            extents.iter().map(|e| (e.0, e.2)),
+        ),
+        ..grid
+    };
+    for (_, accepted, points) in &extents {
         // Over the region where the file's points may lie (its bounds plus the rounding
         // tolerance the tiler accepts): a cell only a rounded point reaches is planned too.
-        spread(&f.accepted(), f.points, &grid, &mut cells);
+        spread(accepted, *points, &grid, &mut cells);
     }
     let mut tiles: Vec<PlannedTile> = cells
         .into_iter()

@@ -120,7 +120,8 @@ fn plan_covers_every_tile_once_in_balanced_morton_contiguous_tasks() {
 }
 
 /// A sparse file (2 points whose bounds reach 4 tiles) still plans all 4 tiles: a tile left
-/// out of a plan would never be processed.
+/// out of a plan would never be processed. (With `tiling.sparse_tile_points` at its default
+/// the two points make one larger tile, as a run cuts them.)
 #[test]
 fn every_tile_an_input_reaches_is_planned() {
     let d = tempfile::tempdir().unwrap();
@@ -140,8 +141,20 @@ fn every_tile_an_input_reaches_is_planned() {
         .unwrap();
     }
     w.close().unwrap();
+    let grown = d.path().join("grown");
+    assert!(plan(&inputs, &grown, 2).status.success());
+    let tsv = std::fs::read_to_string(grown.join("tiles.tsv")).unwrap();
+    assert_eq!(tsv.lines().count(), 2, "{tsv}");
     let out = d.path().join("plan");
-    assert!(plan(&inputs, &out, 2).status.success());
+    let o = Command::new(env!("CARGO_BIN_EXE_tessera"))
+        .args(["-q", "plan"])
+        .arg(&inputs)
+        .arg("--out")
+        .arg(&out)
+        .args(["--tasks", "2", "--set", "tiling.sparse_tile_points=0"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let tsv = std::fs::read_to_string(out.join("tiles.tsv")).unwrap();
     let mut cells: Vec<String> = tsv
         .lines()

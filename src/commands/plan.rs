@@ -22,7 +22,8 @@ pub fn plan(
         tile_size_m: unit_cfg.tiling.tile_size_m,
         buffer_m: unit_cfg.tiling.buffer_m,
     };
-    let plan = tessera::region::plan_region(inputs, grid, tasks)?;
+    let plan =
+        tessera::region::plan_region(inputs, grid, unit_cfg.tiling.sparse_tile_points, tasks)?;
     plan.write(out, &cfg.effective)?;
     if !quiet {
         println!(

@@ -140,10 +140,23 @@ impl GroundGrid {
             hi = [0.0; 2];
         }
         // Cells on the world grid of this cell size, not on the tile's corner: a cell then
-        // averages the same ground points whatever the tile layout.
-        let lo = lo.map(|v| (v / cell).floor() * cell);
-        let nx = (((hi[0] - lo[0]) / cell).floor() as usize + 1).min(1 << 14);
-        let ny = (((hi[1] - lo[1]) / cell).floor() as usize + 1).min(1 << 14);
+        // averages the same ground points whatever the tile layout. A tile of a few points
+        // spread over kilometres (sparse inputs get large tiles) takes cells twice, four
+        // times, … as wide, so the grid never has many more cells than the tile has points.
+        let most = 4 * xyz.len() + 65_536;
+        let mut cell = cell;
+        let (lo, nx, ny) = loop {
+            let lo = lo.map(|v| (v / cell).floor() * cell);
+            let n = |d: usize| ((hi[d] - lo[d]) / cell).floor() + 1.0;
+            if n(0) * n(1) <= most as f64 || !cell.is_finite() {
+                break (
+                    lo,
+                    (n(0) as usize).clamp(1, 1 << 14),
+                    (n(1) as usize).clamp(1, 1 << 14),
+                );
+            }
+            cell *= 2.0;
+        };
         let mut sum = vec![0.0; nx * ny];
         let mut cnt = vec![0u32; nx * ny];
         let mut g = GroundGrid {
@@ -174,39 +187,7 @@ impl GroundGrid {
             .zip(&cnt)
             .map(|(s, &c)| if c > 0 { s / c as f64 } else { f64::NAN })
             .collect();
-        // Dilation: each pass fills empty cells with the mean of their filled 8-neighbours.
-        loop {
-            let mut changed = false;
-            let prev = z.clone();
-            for iy in 0..ny {
-                for ix in 0..nx {
-                    if !prev[iy * nx + ix].is_nan() {
-                        continue;
-                    }
-                    let (mut s, mut c) = (0.0, 0);
-                    for dy in -1i64..=1 {
-                        for dx in -1i64..=1 {
-                            let (x, y) = (ix as i64 + dx, iy as i64 + dy);
-                            if x < 0 || y < 0 || x >= nx as i64 || y >= ny as i64 {
-                                continue;
-                            }
-                            let v = prev[y as usize * nx + x as usize];
-                            if !v.is_nan() {
-                                s += v;
-                                c += 1;
-                            }
-                        }
-                    }
-                    if c > 0 {
-                        z[iy * nx + ix] = s / c as f64;
-                        changed = true;
-                    }
-                }
-            }
-            if !changed {
-                break;
-            }
-        }
+        dilate_ground(&mut z, nx, ny);
         for v in &mut z {
             if v.is_nan() {
                 *v = zmin;
@@ -225,6 +206,67 @@ impl GroundGrid {
     /// Height of point `p` above the ground.
     pub fn height(&self, p: &[f64; 3]) -> f64 {
         p[2] - self.z[self.index(p[0], p[1])]
+    }
+}
+
+/// Fills the empty (NaN) cells of a `nx` × `ny` grid in waves: each wave gives the empty
+/// cells next to filled ones the mean of their filled 8-neighbours of earlier waves (the
+/// neighbours added in the same order as a pass over the whole grid would). Each cell is
+/// visited once per wave that reaches it, not every cell once per wave: a tile with two
+/// ground cells kilometres apart used to take a pass over the grid per cell of distance.
+fn dilate_ground(z: &mut [f64], nx: usize, ny: usize) {
+    const NONE: u32 = u32::MAX;
+    let mut wave: Vec<u32> = z
+        .iter()
+        .map(|v| if v.is_nan() { NONE } else { 0 })
+        .collect();
+    if !wave.contains(&NONE) {
+        return;
+    }
+    let mut front: Vec<usize> = (0..z.len()).filter(|&k| wave[k] == 0).collect();
+    // The 3 × 3 block around cell k within the grid, rows then columns (as a pass reads it).
+    let block = |k: usize| {
+        let (ix, iy) = (k % nx, k / nx);
+        (
+            ix.saturating_sub(1)..(ix + 2).min(nx),
+            iy.saturating_sub(1)..(iy + 2).min(ny),
+        )
+    };
+    let mut level = 0u32;
+    let mut next: Vec<usize> = Vec::new();
+    while !front.is_empty() {
+        level += 1;
+        next.clear();
+        for &k in &front {
+            let (xs, ys) = block(k);
+            for y in ys {
+                for x in xs.clone() {
+                    let j = y * nx + x;
+                    if wave[j] == NONE {
+                        wave[j] = level;
+                        next.push(j);
+                    }
+                }
+            }
+        }
+        // Row-major order, as a pass over the grid takes them (the values do not depend on
+        // it: each reads only earlier waves).
+        next.sort_unstable();
+        for &j in &next {
+            let (xs, ys) = block(j);
+            let (mut s, mut c) = (0.0, 0);
+            for y in ys {
+                for x in xs.clone() {
+                    let i = y * nx + x;
+                    if wave[i] < level {
+                        s += z[i];
+                        c += 1;
+                    }
+                }
+            }
+            z[j] = s / c as f64;
+        }
+        std::mem::swap(&mut front, &mut next);
     }
 }
 
@@ -523,6 +565,88 @@ fn classify_shape(sh: &Shape, p: &ObjectParams, touches_building: bool) -> Objec
 
 #[cfg(test)]
 mod tests {
+
+    /// The pass-over-the-grid dilation `dilate_ground` replaced, as it was.
+    fn dilate_by_passes(z: &mut [f64], nx: usize, ny: usize) {
+        loop {
+            let mut changed = false;
+            let prev = z.to_vec();
+            for iy in 0..ny {
+                for ix in 0..nx {
+                    if !prev[iy * nx + ix].is_nan() {
+                        continue;
+                    }
+                    let (mut s, mut c) = (0.0, 0);
+                    for dy in -1i64..=1 {
+                        for dx in -1i64..=1 {
+                            let (x, y) = (ix as i64 + dx, iy as i64 + dy);
+                            if x < 0 || y < 0 || x >= nx as i64 || y >= ny as i64 {
+                                continue;
+                            }
+                            let v = prev[y as usize * nx + x as usize];
+                            if !v.is_nan() {
+                                s += v;
+                                c += 1;
+                            }
+                        }
+                    }
+                    if c > 0 {
+                        z[iy * nx + ix] = s / c as f64;
+                        changed = true;
+                    }
+                }
+            }
+            if !changed {
+                break;
+            }
+        }
+    }
+
+    #[test]
+    fn ground_dilation_in_waves_equals_passes_bit_for_bit() {
+        let mut seed = 12345u64;
+        let mut next = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for (nx, ny, fill) in [
+            (1, 1, 1.0),
+            (7, 5, 0.1),
+            (40, 33, 0.02),
+            (64, 64, 0.3),
+            (9, 1, 0.0),
+        ] {
+            let z: Vec<f64> = (0..nx * ny)
+                .map(|_| {
+                    if next() < fill {
+                        100.0 * next()
+                    } else {
+                        f64::NAN
+                    }
+                })
+                .collect();
+            let (mut a, mut b) = (z.clone(), z);
+            super::dilate_ground(&mut a, nx, ny);
+            dilate_by_passes(&mut b, nx, ny);
+            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&a), bits(&b), "{nx} x {ny}, fill {fill}");
+        }
+    }
+
+    #[test]
+    fn ground_grid_of_far_flung_points_stays_small() {
+        // Two ground points 40 km apart and one point above: cells coarsen, heights hold.
+        let xyz = [
+            [0.0, 0.0, 10.0],
+            [40_000.0, 30_000.0, 10.0],
+            [20_000.0, 15_000.0, 15.0],
+        ];
+        let g = super::GroundGrid::new(&xyz, &[true, true, false], 1.0);
+        assert!(g.nx * g.ny <= 4 * 3 + 65_536, "{} x {}", g.nx, g.ny);
+        assert!((g.height(&xyz[2]) - 5.0).abs() < 1e-9);
+    }
     use super::*;
 
     fn add_box(pts: &mut Vec<[f64; 3]>, lo: [f64; 3], hi: [f64; 3], step: f64) {

@@ -139,6 +139,19 @@ impl RunPlan {
             Some(s) if stitching => Some(stitch_plan(cfg, s.as_ref(), &set)),
             _ => None,
         };
+        let tile_size_m = crate::tiling::grid::sparse_tile_size(
+            cfg.tiling.tile_size_m,
+            cfg.tiling.sparse_tile_points,
+            set.files.iter().map(|f| (f.bounds, f.points)),
+        );
+        if tile_size_m != cfg.tiling.tile_size_m {
+            tracing::info!(
+                "sparse inputs ({} points over their bounds): tiles of {tile_size_m} instead of {} (tiling.sparse_tile_points = {})",
+                set.total_points,
+                cfg.tiling.tile_size_m,
+                cfg.tiling.sparse_tile_points
+            );
+        }
         // Global ids are point ordinals + 1: u32 while the run has fewer points.
         let id_type = if stitch.is_some() && set.total_points >= u32::MAX as u64 {
             SegmentIdType::U64
@@ -147,7 +160,7 @@ impl RunPlan {
         };
         Ok(RunPlan {
             grid: Grid {
-                tile_size_m: cfg.tiling.tile_size_m,
+                tile_size_m,
                 buffer_m,
             },
             budget,

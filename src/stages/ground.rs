@@ -97,7 +97,7 @@ impl Stage for GroundStage {
         report: &mut TileReport,
     ) -> Result<()> {
         let classes =
-            classify_ground(&tile.xyz, &self.section.params).map_err(|e| Error::Stage {
+            classify_in_clusters(&tile.xyz, &self.section.params).map_err(|e| Error::Stage {
                 tile: tile.name.to_string(),
                 stage: "ground",
                 source: Box::new(e),
@@ -136,4 +136,57 @@ impl Stage for GroundStage {
         );
         Ok(())
     }
+}
+
+/// [`classify_ground`] on a tile's points; a tile whose points are too far-flung for the
+/// filter's seed grid (a few points spread over kilometres: sparse inputs get large tiles)
+/// is filtered cluster by cluster instead. A cluster is a connected group of occupied
+/// cells four seed cells wide: its points are more than three seed cells from any other
+/// cluster's, farther than a TIN triangle between them could mean terrain. Tiles the filter
+/// takes whole are filtered whole, so dense data is classified as before.
+fn classify_in_clusters(
+    xyz: &[[f64; 3]],
+    params: &crate::ground::GroundParams,
+) -> std::result::Result<Vec<GroundClass>, crate::ground::GroundError> {
+    match classify_ground(xyz, params) {
+        Err(crate::ground::GroundError::GridTooLarge { .. }) => {}
+        other => return other,
+    }
+    let cell = 4.0 * params.seed_cell_m;
+    let key = |p: &[f64; 3]| ((p[0] / cell).floor() as i64, (p[1] / cell).floor() as i64);
+    // Union-find over the occupied cells, joined to their 8 neighbours.
+    let mut index: std::collections::HashMap<(i64, i64), usize> = Default::default();
+    for p in xyz {
+        let n = index.len();
+        index.entry(key(p)).or_insert(n);
+    }
+    let mut parent: Vec<usize> = (0..index.len()).collect();
+    fn root(parent: &mut [usize], mut i: usize) -> usize {
+        while parent[i] != i {
+            parent[i] = parent[parent[i]];
+            i = parent[i];
+        }
+        i
+    }
+    for (&(x, y), &i) in &index {
+        for (dx, dy) in [(1, -1), (1, 0), (1, 1), (0, 1)] {
+            if let Some(&j) = index.get(&(x + dx, y + dy)) {
+                let (a, b) = (root(&mut parent, i), root(&mut parent, j));
+                parent[a.max(b)] = a.min(b);
+            }
+        }
+    }
+    let mut members: std::collections::BTreeMap<usize, Vec<usize>> = Default::default();
+    for (k, p) in xyz.iter().enumerate() {
+        let c = root(&mut parent, index[&key(p)]);
+        members.entry(c).or_default().push(k);
+    }
+    let mut out = vec![GroundClass::Ground; xyz.len()];
+    for idx in members.values() {
+        let pts: Vec<[f64; 3]> = idx.iter().map(|&k| xyz[k]).collect();
+        for (&k, c) in idx.iter().zip(classify_ground(&pts, params)?) {
+            out[k] = c;
+        }
+    }
+    Ok(out)
 }

@@ -12,6 +12,42 @@ pub struct Grid {
     pub buffer_m: f64,
 }
 
+/// The core tile edge for inputs of `(bounds, points)`: `tile_size_m`, doubled until a tile
+/// at the inputs' mean density (their points over the area of their bounds) is expected to
+/// hold `want` points. Dense data keeps `tile_size_m`; a thousand points spread over
+/// kilometres (or random coordinates over the whole 32-bit range) get a handful of tiles
+/// instead of one per point, each of which costs the stages' fixed work per tile.
+/// Doubling keeps the grid aligned to the configured one, and the headers alone decide, so
+/// `tessera plan`, its tasks and their stitch cut the same grid. `want` 0 keeps the size.
+pub fn sparse_tile_size(
+    tile_size_m: f64,
+    want: u64,
+    inputs: impl Iterator<Item = (Rect, u64)>,
+) -> f64 {
+    if want == 0 {
+        return tile_size_m;
+    }
+    let (mut points, mut area) = (0.0f64, 0.0f64);
+    for (r, n) in inputs.filter(|(_, n)| *n > 0) {
+        points += n as f64;
+        // Each file covers at least a tile: a file of points on a line is not taken as dense.
+        area += (r.x1 - r.x0).max(tile_size_m) * (r.y1 - r.y0).max(tile_size_m);
+    }
+    if points == 0.0 || !area.is_finite() {
+        return tile_size_m;
+    }
+    let density = points / area;
+    let mut s = tile_size_m;
+    // At most 2^30 times the configured edge (far beyond the 32-bit coordinate range).
+    for _ in 0..30 {
+        if density * s * s >= want as f64 {
+            break;
+        }
+        s *= 2.0;
+    }
+    s
+}
+
 impl Grid {
     /// Column/row of the core tile containing `(x, y)`.
     #[inline]
@@ -88,5 +124,36 @@ mod tests {
         g.assign(-0.5, 3.0, |t, c| got.push((t.ix, t.iy, c)));
         got.sort();
         assert_eq!(got, vec![(-1, 0, true), (0, 0, false)]);
+    }
+
+    #[test]
+    fn sparse_inputs_get_larger_tiles_dense_ones_keep_theirs() {
+        let r = |x1: f64, y1: f64| Rect {
+            x0: 0.0,
+            y0: 0.0,
+            x1,
+            y1,
+        };
+        // 1 point/m²: a 50 m tile holds 2,500, more than asked.
+        assert_eq!(
+            super::sparse_tile_size(50.0, 256, [(r(1000.0, 1000.0), 1_000_000)].into_iter()),
+            50.0
+        );
+        // 1,065 points over 3.4 × 4.6 km (PDAL's simple.las): 0.2 points per 50 m tile.
+        let s = super::sparse_tile_size(50.0, 256, [(r(3363.0, 4636.0), 1065)].into_iter());
+        assert_eq!(s, 3200.0);
+        assert!(1065.0 / (3363.0 * 4636.0) * s * s >= 256.0);
+        // Off, no points, or no area: the configured size.
+        assert_eq!(
+            super::sparse_tile_size(50.0, 0, [(r(3363.0, 4636.0), 1065)].into_iter()),
+            50.0
+        );
+        assert_eq!(
+            super::sparse_tile_size(50.0, 256, [(r(3363.0, 4636.0), 0)].into_iter()),
+            50.0
+        );
+        // Random 32-bit coordinates: bounded doubling.
+        let huge = super::sparse_tile_size(50.0, 256, [(r(4.3e9, 4.3e9), 50_000)].into_iter());
+        assert!(huge.is_finite() && huge <= 50.0 * 2f64.powi(30));
     }
 }
