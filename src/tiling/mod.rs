@@ -175,8 +175,8 @@ impl<'a> Tiler<'a> {
         slot
     }
 
-    /// Marks input `file` as fully read and returns the tiles that became complete, largest
-    /// first (a deterministic order).
+    /// Marks input `file` as fully read and returns the tiles that became complete, column by
+    /// column and largest first within a column (a deterministic order).
     pub fn file_done(&mut self, file: usize) -> Result<Vec<TileJob>> {
         self.file_done[file] = true;
         let r = reach(&self.files[file], self.layout);
@@ -269,9 +269,12 @@ impl<'a> Tiler<'a> {
             }
             jobs.push(job);
         }
-        // Largest first (ties in id order): with several workers, a big tile started last
-        // would leave the others idle at the end of the batch.
-        jobs.sort_by_key(|j| std::cmp::Reverse(j.n_core + j.n_buf));
+        // Column by column, and largest first within a column (ties in id order): with
+        // several workers, a big tile started last would leave the others idle at the end of
+        // a column; across the whole batch (all of a one-file region at once) the size order
+        // scattered the tiles over the grid, and the stitcher held each finished tile until the
+        // last of its 3 × 3 block was done: half of a 10,000-cell region at once.
+        jobs.sort_by_key(|j| (j.id.ix, std::cmp::Reverse(j.n_core + j.n_buf)));
         Ok(jobs)
     }
 }
