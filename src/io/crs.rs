@@ -207,15 +207,7 @@ fn from_geotiff(keys: &las::crs::GeoTiffCrs, notes: &mut Vec<String>) -> CrsInfo
                 name: format!("user-defined unit of {m} m"),
                 metres: m,
             }),
-            Some(code) => {
-                let unit = LinearUnit::from_epsg(code);
-                if unit.is_none() {
-                    notes.push(format!(
-                        "its GeoTIFF ProjLinearUnitsGeoKey holds {code}, which is not a length unit (left out)"
-                    ));
-                }
-                unit
-            }
+            Some(code) => unit_key(code, "ProjLinearUnitsGeoKey", notes),
             None => None,
         };
         if info.horizontal.is_some() {
@@ -227,19 +219,20 @@ fn from_geotiff(keys: &las::crs::GeoTiffCrs, notes: &mut Vec<String>) -> CrsInfo
             }
         }
     }
-    info.vertical = match u16_key(4099) {
-        Some(code) => {
-            let unit = LinearUnit::from_epsg(code);
-            if unit.is_none() {
-                notes.push(format!(
-                    "its GeoTIFF VerticalUnitsGeoKey holds {code}, which is not a length unit (left out)"
-                ));
-            }
-            unit
-        }
-        None => None,
-    };
+    info.vertical = u16_key(4099).and_then(|code| unit_key(code, "VerticalUnitsGeoKey", notes));
     info
+}
+
+/// The unit of a GeoTIFF unit key's EPSG code; a code that is no length unit is left out,
+/// with a note.
+fn unit_key(code: u16, key: &str, notes: &mut Vec<String>) -> Option<LinearUnit> {
+    let unit = LinearUnit::from_epsg(code);
+    if unit.is_none() {
+        notes.push(format!(
+            "its GeoTIFF {key} holds {code}, which is not a length unit (left out)"
+        ));
+    }
+    unit
 }
 
 /// Metres per coordinate unit of a file: its CRS's horizontal unit, else 1 (metres, also for

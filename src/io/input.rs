@@ -533,16 +533,7 @@ pub fn scan_file(path: &Path, index: usize) -> Result<InputFile> {
     if points > 0 {
         let first = first_point(path, &header, &raw)?;
         let within = |r: &Rect| {
-            first.is_none_or(|p| {
-                let probe = InputFile {
-                    path: path.to_path_buf(),
-                    index,
-                    points,
-                    bounds: *r,
-                    header: header.clone(),
-                };
-                InputFile::accepts(&probe.accepted(), p)
-            })
+            first.is_none_or(|p| InputFile::accepts(&accepted_rect(r, header.transforms()), p))
         };
         if !valid || !within(&bounds) {
             // Wrong header bounds (laspy writes some: raw integers where coordinates belong)
@@ -914,20 +905,23 @@ fn content_sample(path: &Path, len: u64, part: u64) -> Result<Vec<u8>> {
     Ok(out)
 }
 
+/// `bounds` widened by 1.5 scale units of `t` ([`InputFile::accepted`]).
+fn accepted_rect(b: &Rect, t: &Vector<las::Transform>) -> Rect {
+    let tol = |s: f64| 1.5 * s.abs() + 1e-9;
+    Rect {
+        x0: b.x0 - tol(t.x.scale),
+        y0: b.y0 - tol(t.y.scale),
+        x1: b.x1 + tol(t.x.scale),
+        y1: b.y1 + tol(t.y.scale),
+    }
+}
+
 impl InputFile {
     /// Where this file's points must lie: finite, within the header's xy bounds widened by
     /// 1.5 scale units (writers round bounds and coordinates independently). The tiler relies
     /// on it to know when a tile is complete, and checks every point.
     pub fn accepted(&self) -> Rect {
-        let tol = |s: f64| 1.5 * s.abs() + 1e-9;
-        let t = self.header.transforms();
-        let b = self.bounds;
-        Rect {
-            x0: b.x0 - tol(t.x.scale),
-            y0: b.y0 - tol(t.y.scale),
-            x1: b.x1 + tol(t.x.scale),
-            y1: b.y1 + tol(t.y.scale),
-        }
+        accepted_rect(&self.bounds, self.header.transforms())
     }
 
     /// Whether a point passes [`InputFile::accepted`] (`rect` is its value).
