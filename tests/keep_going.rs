@@ -14,6 +14,11 @@ fn tessera() -> Command {
 /// A sparse 1 point/m² ground grid over [0, 150) × [0, 100) m, plus (with `wall`) that many
 /// points stacked at (5, 5): a tile no split can make fit a small budget.
 fn write_scene(path: &Path, wall: usize) -> u64 {
+    write_scene_at(path, wall, 0.0)
+}
+
+/// [`write_scene`] moved `x0` metres east.
+fn write_scene_at(path: &Path, wall: usize, x0: f64) -> u64 {
     let mut b = las::Builder::from((1, 2));
     b.point_format = las::point::Format::new(0).unwrap();
     let mut w = las::Writer::from_path(path, b.into_header().unwrap()).unwrap();
@@ -21,7 +26,7 @@ fn write_scene(path: &Path, wall: usize) -> u64 {
     for ix in 0..150 {
         for iy in 0..100 {
             w.write_point(las::Point {
-                x: ix as f64 + 0.5,
+                x: x0 + ix as f64 + 0.5,
                 y: iy as f64 + 0.5,
                 z: 0.01 * ((ix * 7 + iy * 3) % 11) as f64,
                 ..Default::default()
@@ -32,7 +37,7 @@ fn write_scene(path: &Path, wall: usize) -> u64 {
     }
     for i in 0..wall {
         w.write_point(las::Point {
-            x: 5.0,
+            x: x0 + 5.0,
             y: 5.0,
             z: i as f64 * 0.001,
             ..Default::default()
@@ -277,4 +282,57 @@ fn a_stage_panic_fails_its_tile_not_the_process() {
         "the 50 m × 50 m tile at the origin holds 2,500 grid points"
     );
     assert!(s.is_incomplete());
+}
+
+/// A distributed run whose input became unreadable after planning: each task that should read
+/// it leaves it out, and `tessera stitch` finishes the region with exit code 3, lists the
+/// input once, and accounts for every point the tasks read.
+#[test]
+fn a_task_that_skips_an_input_is_accounted_for_by_the_stitch() {
+    let d = tempfile::tempdir().unwrap();
+    let inputs = d.path().join("in");
+    std::fs::create_dir(&inputs).unwrap();
+    let good = write_scene(&inputs.join("a.las"), 0);
+    // b.las: the same grid 150 m further east.
+    write_scene_at(&inputs.join("b.las"), 0, 150.0);
+    let plan = d.path().join("plan");
+    let o = tessera()
+        .args(["-q", "plan", "--tasks", "2", "--out"])
+        .arg(&plan)
+        .arg(&inputs)
+        .args([
+            "--set",
+            "stages.run=[\"stats\"]",
+            "--set",
+            "pipeline.keep_going=true",
+        ])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "plan: {}", stderr(&o));
+    // b.las is cut inside its point records after planning.
+    let full = std::fs::read(inputs.join("b.las")).unwrap();
+    std::fs::write(inputs.join("b.las"), &full[..full.len() / 2]).unwrap();
+    for task in ["0", "1"] {
+        let o = tessera()
+            .args(["-q", "run", "--plan"])
+            .arg(&plan)
+            .args(["--task", task])
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "task {task}: {}", stderr(&o));
+    }
+    let o = tessera()
+        .args(["-q", "stitch"])
+        .arg(&plan)
+        .output()
+        .unwrap();
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(3), "{err}");
+    let s = summary(&plan);
+    let skipped = s["skipped_inputs"].as_array().unwrap();
+    assert_eq!(skipped.len(), 1, "{s}");
+    assert!(skipped[0]["path"].as_str().unwrap().ends_with("b.las"));
+    assert_eq!(s["points_in"], good, "{s}");
+    assert_eq!(s["points_out"], good, "{s}");
+    assert!(!common::tiles_in(&plan).is_empty());
 }

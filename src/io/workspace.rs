@@ -187,8 +187,9 @@ pub struct OutputDir {
     previous: Option<Previous>,
     /// Staging area for files before they are committed (same file system as `dir`).
     stage: WorkDir,
-    /// Files this run committed, in order.
-    committed: Vec<String>,
+    /// Files this run committed (named, in order, by the journal's `file` lines: a region of
+    /// 10^6 tiles is not listed in memory).
+    committed: u64,
     finished: bool,
     /// A failed run keeps what it committed and its resume directory (it can be resumed):
     /// set once the resume journal names finished work.
@@ -412,7 +413,7 @@ impl OutputDir {
             journal: None,
             previous: prev,
             stage,
-            committed: Vec::new(),
+            committed: 0,
             finished: false,
             resumable: false,
             resume_created: false,
@@ -486,7 +487,7 @@ impl OutputDir {
                 return Err(clash());
             }
             writeln!(journal, "file\t{name}").map_err(|e| Error::io(&jpath, e))?;
-            self.committed.push(name.clone());
+            self.committed += 1;
             // A hard link fails when the name exists (created since the check above), where a
             // rename would silently replace it; file systems without hard links get the rename.
             match std::fs::hard_link(staged, &target) {
@@ -494,7 +495,11 @@ impl OutputDir {
                     let _ = std::fs::remove_file(staged);
                 }
                 Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
-                    self.committed.pop();
+                    // Recorded, not created: the rollback finds no file of that name that is
+                    // this run's (the clash is someone else's file, and it stays).
+                    self.committed -= 1;
+                    let journal = self.start_writing()?;
+                    writeln!(journal, "unfile\t{name}").map_err(|e| Error::io(&jpath, e))?;
                     return Err(clash());
                 }
                 Err(_) => std::fs::rename(staged, &target).map_err(|e| Error::io(&target, e))?,
@@ -528,9 +533,6 @@ impl OutputDir {
             .map_err(|e| Error::io(&jpath, e))?;
         for name in &prev.files {
             if keep.contains(name) {
-                if !self.committed.contains(name) {
-                    self.committed.push(name.clone());
-                }
                 continue;
             }
             let p = self.dir.join(name);
@@ -574,8 +576,8 @@ impl OutputDir {
     }
 
     /// Files committed so far.
-    pub fn committed(&self) -> &[String] {
-        &self.committed
+    pub fn committed(&self) -> u64 {
+        self.committed
     }
 
     /// Writes the run summary (the last file) and marks the run finished; the resume
@@ -643,6 +645,35 @@ pub fn remove_run_dir(dir: &Path) -> Result<()> {
     Ok(())
 }
 
+impl OutputDir {
+    /// Removes the files this run committed, read back from its journal (the `file` lines
+    /// after the run's header; `unfile` takes back a name that was not created).
+    fn remove_committed(&self) {
+        use std::io::BufRead;
+        let Ok(f) = File::open(self.dir.join(JOURNAL)) else {
+            return;
+        };
+        let mut names: Vec<String> = Vec::new();
+        for line in std::io::BufReader::new(f)
+            .lines()
+            .map_while(std::result::Result::ok)
+        {
+            if let Some(name) = line.strip_prefix("file\t") {
+                names.push(name.to_string());
+            } else if let Some(name) = line.strip_prefix("unfile\t") {
+                if let Some(i) = names.iter().rposition(|n| n == name) {
+                    names.remove(i);
+                }
+            }
+        }
+        for name in names.iter().rev() {
+            if check_name(name).is_ok() {
+                let _ = std::fs::remove_file(self.dir.join(name));
+            }
+        }
+    }
+}
+
 impl Drop for OutputDir {
     /// A run that fails takes its partial outputs with it: the directory is left as the run
     /// found it (less what `--overwrite` removed). A killed run cannot do this; its journal
@@ -661,8 +692,8 @@ impl Drop for OutputDir {
         if self.resume_created {
             let _ = remove_resume_dir(&self.dir.join(RESUME_DIR));
         }
-        for name in self.committed.iter().rev() {
-            let _ = std::fs::remove_file(self.dir.join(name));
+        if self.committed > 0 {
+            self.remove_committed();
         }
         if let Some(j) = &self.journal {
             if j.set_len(0).is_ok() {
@@ -755,6 +786,10 @@ fn previous_run(dir: &Path) -> Result<Option<Previous>> {
                     if check_name(name).is_ok() {
                         p.files.push(name.to_string());
                     }
+                } else if let Some(name) = l.strip_prefix("unfile\t") {
+                    if let Some(i) = p.files.iter().rposition(|n| n == name) {
+                        p.files.remove(i);
+                    }
                 } else if let Some(rest) = l.strip_prefix("stamp\t") {
                     let mut it = rest.splitn(3, '\t');
                     if let (Some(len), Some(mtime), Some(name)) = (it.next(), it.next(), it.next())
@@ -788,7 +823,7 @@ fn previous_run(dir: &Path) -> Result<Option<Previous>> {
                 Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
                 Err(e) => return Err(Error::io(&spath, e)),
             };
-            let files = summary_files(&text).ok_or_else(|| Error::OutputDir {
+            let files = summary_files(dir, &text).ok_or_else(|| Error::OutputDir {
                 path: dir.to_path_buf(),
                 reason: format!("{SUMMARY} is not a tessera run summary; refusing to touch it"),
                 usage: false,
@@ -804,16 +839,81 @@ fn previous_run(dir: &Path) -> Result<Option<Previous>> {
     }
 }
 
-/// The files a summary of a journal-less run names: its tiles, their segment tables, itself.
-fn summary_files(text: &str) -> Option<Vec<String>> {
+/// Calls `f` with every tile a run summary names: the lines of its tile table when it has one
+/// (read one at a time), else its `tile_list` (summaries of small runs, and of older versions).
+pub fn for_each_tile(
+    dir: &Path,
+    summary: &serde_json::Value,
+    mut f: impl FnMut(&serde_json::Value) -> Result<()>,
+) -> Result<()> {
+    use std::io::BufRead;
+    let table = summary
+        .get("tile_table")
+        .and_then(serde_json::Value::as_str);
+    let Some(name) = table else {
+        for t in summary
+            .get("tile_list")
+            .and_then(serde_json::Value::as_array)
+            .into_iter()
+            .flatten()
+        {
+            f(t)?;
+        }
+        return Ok(());
+    };
+    // A summary is input: only a plain file name inside the directory.
+    if name.contains('/') || name.starts_with('.') || name.is_empty() {
+        return Err(Error::OutputDir {
+            path: dir.to_path_buf(),
+            reason: format!("summary.json names a tile table outside the directory: {name}"),
+            usage: false,
+        });
+    }
+    let path = dir.join(name);
+    let file = std::fs::File::open(&path).map_err(|e| Error::io(&path, e))?;
+    for (i, line) in std::io::BufReader::new(file).lines().enumerate() {
+        let line = line.map_err(|e| Error::io(&path, e))?;
+        if line.trim().is_empty() {
+            continue;
+        }
+        let v: serde_json::Value = serde_json::from_str(&line).map_err(|e| Error::OutputDir {
+            path: path.clone(),
+            reason: format!("line {}: not a tile record: {e}", i + 1),
+            usage: false,
+        })?;
+        f(&v)?;
+    }
+    Ok(())
+}
+
+/// The files a summary of a journal-less run names: its tiles (from its tile table when it
+/// has one), their segment tables, the tile table, itself.
+fn summary_files(dir: &Path, text: &str) -> Option<Vec<String>> {
     let v: serde_json::Value = serde_json::from_str(text).ok()?;
-    let tiles = v.get("tile_list")?.as_array()?;
+    if v.get("tile_table").is_none() {
+        v.get("tile_list")?.as_array()?;
+    }
     let mut files = Vec::new();
-    for t in tiles {
-        let file = t.get("file")?.as_str()?;
-        files.push(file.to_string());
-        let name = t.get("name")?.as_str()?;
-        files.push(format!("{name}.segments.tsv"));
+    let mut complete = true;
+    for_each_tile(dir, &v, |t| {
+        match (
+            t.get("file").and_then(serde_json::Value::as_str),
+            t.get("name").and_then(serde_json::Value::as_str),
+        ) {
+            (Some(file), Some(name)) => {
+                files.push(file.to_string());
+                files.push(format!("{name}.segments.tsv"));
+            }
+            _ => complete = false,
+        }
+        Ok(())
+    })
+    .ok()?;
+    if !complete {
+        return None;
+    }
+    if let Some(t) = v.get("tile_table").and_then(serde_json::Value::as_str) {
+        files.push(t.to_string());
     }
     files.push(SUMMARY.to_string());
     files.retain(|f| check_name(f).is_ok());

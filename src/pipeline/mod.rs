@@ -368,10 +368,8 @@ fn execute(
     summary.buffer_m = plan.grid.buffer_m;
     // Tiles by name, failed tiles by name, split roots by name: the summary of a run does not
     // depend on which worker finished first.
-    summary.tile_list.sort_by(|a, b| a.name.cmp(&b.name));
     summary.failed_tiles.sort_by(|a, b| a.tile.cmp(&b.tile));
     summary.split_tiles.sort();
-    summary.tiles = summary.tile_list.len();
     summary.tiles_split = summary.split_tiles.len();
     summary.max_open_tiles = max_open.load(Ordering::Relaxed) as usize;
     summary.points_read = read_points.load(Ordering::Relaxed);
@@ -404,8 +402,15 @@ pub(crate) fn write_report(
 ) -> Result<()> {
     let value = serde_json::to_value(&*summary).map_err(|e| Error::Internal(e.to_string()))?;
     let drawn = sink.map(OverviewSink::take);
-    let (html, cost) = crate::report::html::build(out.path(), &value, drawn)?;
-    out.commit_bytes(crate::report::html::REPORT, html.as_bytes())?;
+    let staged = out.stage().join(crate::report::html::REPORT);
+    let file = std::fs::File::create(&staged).map_err(|e| Error::io(&staged, e))?;
+    let mut w = std::io::BufWriter::with_capacity(1 << 16, file);
+    let cost = crate::report::html::build(out.path(), &value, drawn, &mut w)?;
+    w.into_inner()
+        .map_err(|e| e.into_error())
+        .and_then(|f| f.sync_all())
+        .map_err(|e| Error::io(&staged, e))?;
+    out.commit(&[(staged, crate::report::html::REPORT.to_string())])?;
     summary.seconds.insert("report".into(), cost.seconds);
     summary.report_raster = Some(cost.geometry);
     // The report's memory counts against the budget like the rest of the run.
@@ -429,12 +434,24 @@ pub(crate) fn finish_class_files(
     summary: &mut Summary,
 ) -> Result<()> {
     let t = Instant::now();
-    let files: Vec<(String, PathBuf)> = summary
-        .tile_list
-        .iter()
-        .map(|t| (t.name.clone(), out.path().join(&t.file)))
-        .collect();
-    classes.add_files(&files)?;
+    // The tiles in batches, read from the tile table: no list of every tile in memory.
+    let table =
+        serde_json::json!({ "tile_table": summary.tile_table, "tile_list": summary.tile_list });
+    let mut batch: Vec<(String, PathBuf)> = Vec::new();
+    let dir = out.path().to_path_buf();
+    crate::report::for_each_tile(&dir, &table, |t| {
+        let name = t.get("name").and_then(serde_json::Value::as_str);
+        let file = t.get("file").and_then(serde_json::Value::as_str);
+        if let (Some(name), Some(file)) = (name, file) {
+            batch.push((name.to_string(), dir.join(file)));
+        }
+        if batch.len() >= 256 {
+            classes.add_files(&batch)?;
+            batch.clear();
+        }
+        Ok(())
+    })?;
+    classes.add_files(&batch)?;
     summary.class_files = classes.finish(out)?;
     summary
         .seconds

@@ -80,7 +80,8 @@ pub fn stitch_plan_dir(dir: &Path, overwrite: bool) -> Result<Summary> {
     } else {
         None
     };
-    if run.set.total_points != plan.points {
+    let (expected, skipped) = task_accounts(dir, n_tasks, &run.skipped_inputs)?;
+    if skipped.is_empty() && run.set.total_points != plan.points {
         return Err(Error::Config(format!(
             "{}: the inputs now announce {} points, the plan {}; plan again",
             dir.display(),
@@ -88,6 +89,12 @@ pub fn stitch_plan_dir(dir: &Path, overwrite: bool) -> Result<Summary> {
             plan.points
         )));
     }
+    // Without skipped inputs the tasks together binned every point the plan counted.
+    let expected = if skipped.is_empty() {
+        plan.points
+    } else {
+        expected
+    };
     // Every task's finished cells; a cell belongs to one task.
     let mut cells: BTreeMap<CellKey, TaskCell> = BTreeMap::new();
     for task in 0..n_tasks {
@@ -135,15 +142,14 @@ pub fn stitch_plan_dir(dir: &Path, overwrite: bool) -> Result<Summary> {
         stitch_s,
         ..
     } = collector;
-    summary.tile_list.sort_by(|a, b| a.name.cmp(&b.name));
     summary.failed_tiles.sort_by(|a, b| a.tile.cmp(&b.tile));
     summary.split_tiles.sort();
-    summary.tiles = summary.tile_list.len();
     summary.tiles_split = summary.split_tiles.len();
     summary.version = env!("CARGO_PKG_VERSION").into();
     summary.inputs = run.set.files.len();
-    summary.points_in = plan.points;
-    summary.points_read = plan.points;
+    summary.points_in = expected;
+    summary.points_read = expected;
+    summary.skipped_inputs = skipped;
     summary.buffer_m = run.grid.buffer_m;
     summary.memory_budget_mb = cfg.pipeline.memory_budget_mb;
     summary.point_format = run.set.layout.format.to_u8().unwrap_or(255);
@@ -156,10 +162,10 @@ pub fn stitch_plan_dir(dir: &Path, overwrite: bool) -> Result<Summary> {
         .seconds
         .insert("total".into(), t0.elapsed().as_secs_f64());
     summary.peak_rss_mb = peak_rss_mb().unwrap_or(0.0);
-    // Every point of the region is in exactly one task's cells: written, or in a failed tile.
-    if summary.points_out + summary.points_failed != plan.points {
+    // Every point the tasks read is in exactly one task's cells: written, or in a failed tile.
+    if summary.points_out + summary.points_failed != expected {
         return Err(Error::Internal(format!(
-            "the plan's inputs announce {} points; the tasks wrote {} and failed {}",
+            "the tasks read {expected} points of the plan's {}; they wrote {} and failed {}",
             plan.points, summary.points_out, summary.points_failed
         )));
     }
@@ -177,6 +183,53 @@ pub fn stitch_plan_dir(dir: &Path, overwrite: bool) -> Result<Summary> {
     }
     let _ = std::fs::remove_dir(dir.join("tasks"));
     Ok(summary)
+}
+
+/// The tasks' own accounts from their summaries: the core points they binned together (each
+/// read its inputs less the ones it left out, `pipeline.keep_going`), and every input a task
+/// or the stitch itself left out, once each. An input skipped by one task may have been read
+/// by another (it failed later, or only there): the points are then counted where read.
+fn task_accounts(
+    dir: &Path,
+    n_tasks: usize,
+    own: &[crate::io::input::SkippedInput],
+) -> Result<(u64, Vec<crate::io::input::SkippedInput>)> {
+    let mut points = 0u64;
+    let mut skipped: Vec<crate::io::input::SkippedInput> = own.to_vec();
+    for task in 0..n_tasks {
+        let path = task_dir(dir, task).join(SUMMARY);
+        let text = std::fs::read_to_string(&path).map_err(|e| Error::io(&path, e))?;
+        let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| Error::OutputDir {
+            path: path.clone(),
+            reason: format!("not a task summary: {e}"),
+            usage: false,
+        })?;
+        points += v
+            .get("points_in")
+            .and_then(serde_json::Value::as_u64)
+            .unwrap_or(0);
+        for s in v
+            .get("skipped_inputs")
+            .and_then(serde_json::Value::as_array)
+            .into_iter()
+            .flatten()
+        {
+            let (Some(p), Some(e)) = (
+                s.get("path").and_then(serde_json::Value::as_str),
+                s.get("error").and_then(serde_json::Value::as_str),
+            ) else {
+                continue;
+            };
+            let p = PathBuf::from(p);
+            if !skipped.iter().any(|k| k.path == p) {
+                skipped.push(crate::io::input::SkippedInput {
+                    path: p,
+                    error: format!("task {task}: {e}"),
+                });
+            }
+        }
+    }
+    Ok((points, skipped))
 }
 
 /// Hands one finished cell to the writer: its release (later neighbours still open), its

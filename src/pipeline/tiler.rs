@@ -7,7 +7,7 @@ use super::reader::ReadMsg;
 use super::writer::ToWriter;
 use crate::error::Result;
 use crate::io::InputFile;
-use crate::model::RecordLayout;
+use crate::model::{RecordLayout, TileId};
 use crate::tiling::{Grid, TileJob, Tiler};
 use crossbeam_channel::{Receiver, Sender};
 use std::path::Path;
@@ -87,8 +87,8 @@ impl TilerRole<'_> {
                     max_open.fetch_max(tiler.open_tiles() as u64, Ordering::Relaxed);
                 }
                 ReadMsg::FileDone(f) => {
-                    let jobs = tiler.file_done(f)?;
-                    if !release(&mut tiler, ch, jobs) {
+                    let ready = tiler.complete_after(f);
+                    if !release(&mut tiler, ch, ready)? {
                         return Ok(());
                     }
                 }
@@ -97,21 +97,34 @@ impl TilerRole<'_> {
         if failure.failed() {
             return Ok(());
         }
-        let jobs = tiler.finish()?;
-        release(&mut tiler, ch, jobs);
+        let open = tiler.still_open();
+        release(&mut tiler, ch, open)?;
         core_points.store(tiler.core_points(), Ordering::Relaxed);
         Ok(())
     }
 }
 
-/// Announces the cells the tiler released (before their jobs leave), then sends the jobs.
-/// False when the run is shutting down (a channel closed).
-fn release(tiler: &mut Tiler, ch: &TilerChannels, jobs: Vec<TileJob>) -> bool {
-    let cells = tiler.take_releases();
-    if let Some(tx) = &ch.release_tx {
-        if !cells.is_empty() && tx.send(ToWriter::Released(cells)).is_err() {
-            return false;
+/// Releases the cells `ids` (sorted) one column at a time: announces the column's cells
+/// (before their jobs leave), then sends its jobs. Only one column's jobs exist at once, so
+/// a region whose cells all complete together (a one-file region) does not hold a job per
+/// cell. False when the run is shutting down (a channel closed).
+fn release(tiler: &mut Tiler, ch: &TilerChannels, ids: Vec<TileId>) -> Result<bool> {
+    let mut rest = ids.into_iter().peekable();
+    while let Some(first) = rest.next() {
+        let mut column = vec![first];
+        while let Some(id) = rest.next_if(|id| id.ix == first.ix) {
+            column.push(id);
+        }
+        let jobs = tiler.release(column)?;
+        let cells = tiler.take_releases();
+        if let Some(tx) = &ch.release_tx {
+            if !cells.is_empty() && tx.send(ToWriter::Released(cells)).is_err() {
+                return Ok(false);
+            }
+        }
+        if !jobs.into_iter().all(|job| ch.job_tx.send(job).is_ok()) {
+            return Ok(false);
         }
     }
-    jobs.into_iter().all(|job| ch.job_tx.send(job).is_ok())
+    Ok(true)
 }

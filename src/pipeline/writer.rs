@@ -9,7 +9,7 @@ use crate::error::{Error, Result};
 use crate::io::output::{Container, DeferredTile};
 use crate::io::workspace::OutputDir;
 use crate::io::{PendingTile, TileWriter};
-use crate::report::{FailedTile, Summary, TileSummary};
+use crate::report::{FailedTile, Summary, TileSummary, TileTable, TILE_TABLE};
 use crate::stages::TileReport;
 use crate::stitch::{BorderSummary, CellKey, CellRelease, Ready, StitchParams, Stitcher};
 use crossbeam_channel::Receiver;
@@ -164,6 +164,8 @@ pub(super) struct Collector<'a> {
     /// Reports core points processed (written, deferred or failed) of a total.
     pub progress: Option<(super::ProgressFn<'a>, u64)>,
     processed: u64,
+    /// The tile table, started with the first booked tile.
+    table: Option<TileTable>,
 }
 
 impl<'a> Collector<'a> {
@@ -183,6 +185,7 @@ impl<'a> Collector<'a> {
             open_cells: HashMap::new(),
             progress: None,
             processed: 0,
+            table: None,
             keep_deferred: false,
             write_threads: 1,
             summary: Summary::default(),
@@ -300,18 +303,18 @@ impl<'a> Collector<'a> {
                             let e = meta.entry(TileResult::Written { files });
                             self.open_cells.entry(meta.cell).or_default().0.push(e);
                         }
-                        self.book(meta, &path);
+                        self.book(meta, &path)?;
                         self.write_s += t.elapsed().as_secs_f64();
                     }
                     TileOutput::Link(files) => {
                         self.out.link(&files)?;
                         let path = self.out.path().join(files.first().map_or("", |f| &f.1));
-                        self.book(meta, &path);
+                        self.book(meta, &path)?;
                         self.write_s += t.elapsed().as_secs_f64();
                     }
                     TileOutput::Reused(files) => {
                         let path = self.out.path().join(files.first().map_or("", |f| f));
-                        self.book(meta, &path);
+                        self.book(meta, &path)?;
                     }
                     TileOutput::Deferred(d, summary) => match &mut self.stitcher {
                         Some(st) => {
@@ -328,7 +331,7 @@ impl<'a> Collector<'a> {
                                 self.open_cells.entry(meta.cell).or_default().0.push(e);
                             }
                             let raw = d.files().0.to_path_buf();
-                            self.book(meta, &raw);
+                            self.book(meta, &raw)?;
                         }
                         None => {
                             d.abandon();
@@ -352,6 +355,21 @@ impl<'a> Collector<'a> {
         if let Some(st) = &self.stitcher {
             self.summary.stitch = Some(st.stats().clone());
         }
+        self.commit_table()
+    }
+
+    /// Commits the tile table (an empty one when no tile was written) and puts the tile count,
+    /// and for a small run the tiles themselves, into the summary.
+    fn commit_table(&mut self) -> Result<()> {
+        let table = match self.table.take() {
+            Some(t) => t,
+            None => TileTable::create(self.out.stage())?,
+        };
+        self.summary.tiles = table.rows();
+        let (staged, inline) = table.finish()?;
+        self.out.commit(&[(staged, TILE_TABLE.to_string())])?;
+        self.summary.tile_list = inline;
+        self.summary.tile_table = Some(TILE_TABLE.to_string());
         Ok(())
     }
 
@@ -430,7 +448,7 @@ impl<'a> Collector<'a> {
         if let Some(files) = &meta.final_files {
             let path = self.out.path().join(files.first().map_or("", |f| f));
             d.abandon();
-            self.book(meta, &path);
+            self.book(meta, &path)?;
             return Ok(());
         }
         let written = pre.unwrap_or_else(|| self.writer.write_deferred(&stage, &d, ids));
@@ -439,7 +457,7 @@ impl<'a> Collector<'a> {
                 d.abandon();
             }
             let path = written.and_then(|p| p.commit(self.out))?;
-            self.book(meta, &path);
+            self.book(meta, &path)?;
             return Ok(());
         };
         let pending = written?;
@@ -455,11 +473,15 @@ impl<'a> Collector<'a> {
         })?;
         self.out.set_resumable();
         d.abandon();
-        self.book(meta, &path);
+        self.book(meta, &path)?;
         Ok(())
     }
 
-    fn book(&mut self, meta: TileMeta, path: &Path) {
+    fn book(&mut self, meta: TileMeta, path: &Path) -> Result<()> {
+        let table = match &mut self.table {
+            Some(t) => t,
+            None => self.table.insert(TileTable::create(self.out.stage())?),
+        };
         let s = &mut self.summary;
         if meta.reused {
             s.tiles_reused += 1;
@@ -480,7 +502,7 @@ impl<'a> Collector<'a> {
                 s.split_tiles.push(root);
             }
         }
-        s.tile_list.push(TileSummary {
+        table.push(TileSummary {
             name: meta.name,
             file: path
                 .file_name()
@@ -494,6 +516,6 @@ impl<'a> Collector<'a> {
             } else {
                 meta.report.seconds
             },
-        });
+        })
     }
 }

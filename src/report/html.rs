@@ -7,7 +7,6 @@
 
 use super::overview::{self, Geometry, Overview, TileExtent};
 use crate::error::{Error, Result};
-use base64::Engine;
 use serde_json::Value;
 use std::collections::HashSet;
 use std::fmt::Write as _;
@@ -32,33 +31,75 @@ pub struct ReportCost {
     pub geometry: Geometry,
 }
 
+/// Most tiles outlined on the class map: beyond this the outlines no longer read at the
+/// raster's resolution, and the page would grow with the region.
+const OUTLINE_MAX_TILES: usize = 2000;
+/// Tiles listed in the slowest-tiles table.
+const SLOWEST: usize = 15;
+
+/// One tile of the summary, as the page shows it.
+struct TileRow {
+    name: String,
+    points: u64,
+    buffer_points: u64,
+    /// Stage seconds summed.
+    seconds: f64,
+}
+
+/// What the page keeps of the tiles, whatever their number: the count, the slowest, and the
+/// outlines of a region of at most [`OUTLINE_MAX_TILES`] tiles.
+#[derive(Default)]
+struct TileBook {
+    count: usize,
+    slowest: Vec<TileRow>,
+    outlines: Vec<(TileExtent, f64)>,
+}
+
+impl TileBook {
+    fn add(&mut self, row: TileRow, extent: Option<TileExtent>) {
+        self.count += 1;
+        if let Some(e) = extent {
+            self.outlines.push((e, row.seconds));
+        }
+        if self.count > OUTLINE_MAX_TILES {
+            self.outlines = Vec::new();
+        }
+        let slower =
+            |a: &TileRow, b: &TileRow| b.seconds.total_cmp(&a.seconds).then(a.name.cmp(&b.name));
+        let at = self
+            .slowest
+            .binary_search_by(|r| slower(r, &row))
+            .unwrap_or_else(|i| i);
+        if at < SLOWEST {
+            self.slowest.insert(at, row);
+            self.slowest.truncate(SLOWEST);
+        }
+    }
+}
+
+/// A tile row's name and file (plain file names inside the directory only: a summary is
+/// input).
+fn name_file(t: &Value) -> Option<(&str, &str)> {
+    let file = t.get("file")?.as_str()?;
+    if file.contains('/') || file.starts_with('.') || file.is_empty() {
+        return None;
+    }
+    Some((t.get("name")?.as_str()?, file))
+}
+
 /// Builds the report page of the run in `dir` whose summary is `summary`. `drawn` is what
 /// the run drew while writing (its raster and the tiles in it); the other tiles of the
 /// summary are decoded from their files, into the raster `summary.report_raster` names (else
-/// one covering the tiles).
+/// one covering the tiles). The tiles are read from the summary's tile table one at a time
+/// (two passes when the raster must first be sized), so memory is the raster and a batch of
+/// tiles however large the region.
 pub fn build(
     dir: &Path,
     summary: &Value,
     drawn: Option<(Overview, HashSet<String>)>,
-) -> Result<(String, ReportCost)> {
+    w: &mut dyn std::io::Write,
+) -> Result<ReportCost> {
     let t0 = Instant::now();
-    let files: Vec<(String, String)> = summary
-        .get("tile_list")
-        .and_then(Value::as_array)
-        .map(|a| {
-            a.iter()
-                .filter_map(|t| {
-                    let file = t.get("file")?.as_str()?;
-                    // A summary is input: only plain file names inside the directory.
-                    if file.contains('/') || file.starts_with('.') || file.is_empty() {
-                        return None;
-                    }
-                    Some((t.get("name")?.as_str()?.to_string(), file.to_string()))
-                })
-                .collect()
-        })
-        .unwrap_or_default();
-    let tiles = overview::tile_extents(dir, &files)?;
     let (mut ov, done) = match drawn {
         Some(d) => d,
         None => {
@@ -66,28 +107,82 @@ pub fn build(
                 .get("report_raster")
                 .and_then(|v| serde_json::from_value::<Geometry>(v.clone()).ok())
                 .filter(Geometry::is_sane);
-            let ov = match recorded {
-                Some(g) => Overview::with_geometry(g),
-                None => Overview::new(&tiles),
+            let g = match recorded {
+                Some(g) => g,
+                None => {
+                    let mut b = [
+                        f64::INFINITY,
+                        f64::INFINITY,
+                        f64::NEG_INFINITY,
+                        f64::NEG_INFINITY,
+                    ];
+                    super::for_each_tile(dir, summary, |t| {
+                        let Some((name, file)) = name_file(t) else {
+                            return Ok(());
+                        };
+                        for e in overview::tile_extents(dir, &[(name.into(), file.into())])? {
+                            if e.points > 0 {
+                                b = [
+                                    b[0].min(e.bounds[0]),
+                                    b[1].min(e.bounds[1]),
+                                    b[2].max(e.bounds[2]),
+                                    b[3].max(e.bounds[3]),
+                                ];
+                            }
+                        }
+                        Ok(())
+                    })?;
+                    Geometry::for_bounds(b)
+                }
             };
-            (ov, HashSet::new())
+            (Overview::with_geometry(g), HashSet::new())
         }
     };
-    let todo: Vec<TileExtent> = tiles
-        .iter()
-        .filter(|t| !done.contains(&t.name))
-        .cloned()
-        .collect();
+    let mut book = TileBook::default();
+    let mut todo: Vec<TileExtent> = Vec::new();
+    let mut decoded = 0;
+    super::for_each_tile(dir, summary, |t| {
+        let Some((name, file)) = name_file(t) else {
+            return Ok(());
+        };
+        let row = TileRow {
+            name: name.to_string(),
+            points: num(t.get("points")) as u64,
+            buffer_points: num(t.get("buffer_points")) as u64,
+            seconds: t
+                .get("seconds")
+                .and_then(Value::as_object)
+                .map(|o| o.values().filter_map(Value::as_f64).sum())
+                .unwrap_or(0.0),
+        };
+        let outline = book.count < OUTLINE_MAX_TILES;
+        let extent = if outline || !done.contains(name) {
+            overview::tile_extents(dir, &[(name.into(), file.into())])?.pop()
+        } else {
+            None
+        };
+        if let Some(e) = extent.as_ref().filter(|_| !done.contains(name)) {
+            todo.push(e.clone());
+            if todo.len() >= 64 {
+                ov.add_tiles(&todo)?;
+                decoded += todo.len();
+                todo.clear();
+            }
+        }
+        book.add(row, extent.filter(|_| outline));
+        Ok(())
+    })?;
     ov.add_tiles(&todo)?;
-    let html = page(dir, summary, &ov, &tiles)?;
+    decoded += todo.len();
+    page(dir, summary, &ov, &book, w)?;
     let cost = ReportCost {
         seconds: t0.elapsed().as_secs_f64(),
         points: ov.points,
         pixels: ov.width * ov.height,
-        decoded_tiles: todo.len(),
+        decoded_tiles: decoded,
         geometry: ov.geometry(),
     };
-    Ok((html, cost))
+    Ok(cost)
 }
 
 /// Reads `dir/summary.json` and rewrites `dir/report.html` (atomically, recorded in the run's
@@ -100,8 +195,9 @@ pub fn regenerate(dir: &Path) -> Result<ReportCost> {
         reason: format!("{} is not a tessera run summary: {e}", spath.display()),
         usage: false,
     })?;
-    let (html, cost) = build(dir, &summary, None)?;
-    crate::io::workspace::rewrite_in_finished_run(dir, REPORT, html.as_bytes())?;
+    let mut html = Vec::new();
+    let cost = build(dir, &summary, None, &mut html)?;
+    crate::io::workspace::rewrite_in_finished_run(dir, REPORT, &html)?;
     Ok(cost)
 }
 
@@ -128,11 +224,49 @@ fn thousands(n: u64) -> String {
     out
 }
 
-fn data_uri(png: &[u8]) -> String {
-    format!(
-        "data:image/png;base64,{}",
-        base64::engine::general_purpose::STANDARD.encode(png)
-    )
+/// The page as it is written: text goes straight to the output, so the page is never held
+/// whole (a large region's report is tens of MB, nearly all of it images). The first write
+/// error is kept and returned at the end.
+struct Page<'w> {
+    w: &'w mut dyn std::io::Write,
+    err: Option<std::io::Error>,
+}
+
+impl std::fmt::Write for Page<'_> {
+    fn write_str(&mut self, s: &str) -> std::fmt::Result {
+        self.bytes(s.as_bytes());
+        Ok(())
+    }
+}
+
+impl Page<'_> {
+    fn bytes(&mut self, b: &[u8]) {
+        if self.err.is_none() {
+            if let Err(e) = self.w.write_all(b) {
+                self.err = Some(e);
+            }
+        }
+    }
+
+    fn push_str(&mut self, s: &str) {
+        self.bytes(s.as_bytes());
+    }
+
+    /// A PNG as a data URI, base64-encoded on the way out.
+    fn data_uri(&mut self, png: &[u8]) {
+        self.push_str("data:image/png;base64,");
+        if self.err.is_none() {
+            let mut enc = base64::write::EncoderWriter::new(
+                &mut *self.w,
+                &base64::engine::general_purpose::STANDARD,
+            );
+            let res =
+                std::io::Write::write_all(&mut enc, png).and_then(|_| enc.finish().map(|_| ()));
+            if let Err(e) = res {
+                self.err = Some(e);
+            }
+        }
+    }
 }
 
 const STYLE: &str = "body{font:14px/1.45 system-ui,sans-serif;margin:24px;color:#222;max-width:1400px}\
@@ -149,8 +283,14 @@ figure{margin:10px 0}figcaption{color:#555;margin:4px 0}\
 td.hot{background:#fde2e2}";
 
 /// The page.
-fn page(dir: &Path, s: &Value, ov: &Overview, tiles: &[TileExtent]) -> Result<String> {
-    let mut h = String::with_capacity(1 << 20);
+fn page(
+    dir: &Path,
+    s: &Value,
+    ov: &Overview,
+    tiles: &TileBook,
+    w: &mut dyn std::io::Write,
+) -> Result<()> {
+    let mut h = Page { w, err: None };
     let _ = write!(
         h,
         "<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>tessera report — {}</title><style>{STYLE}</style></head><body>",
@@ -163,11 +303,11 @@ fn page(dir: &Path, s: &Value, ov: &Overview, tiles: &[TileExtent]) -> Result<St
         esc(s.get("version").and_then(Value::as_str).unwrap_or("?"))
     );
     run_table(&mut h, s);
-    maps(&mut h, s, ov, tiles)?;
+    maps(&mut h, ov, tiles)?;
     if ov.truth_field.is_some() {
         confusion(&mut h, ov);
     }
-    tile_table(&mut h, s);
+    tile_table(&mut h, tiles);
     stage_table(&mut h, s);
     memory(&mut h, s);
     if let Some(st) = s.get("stitch").and_then(Value::as_object) {
@@ -183,10 +323,13 @@ fn page(dir: &Path, s: &Value, ov: &Overview, tiles: &[TileExtent]) -> Result<St
         h.push_str("</table>");
     }
     h.push_str("</body></html>\n");
-    Ok(h)
+    match h.err {
+        Some(e) => Err(Error::io(dir.join(REPORT), e)),
+        None => Ok(()),
+    }
 }
 
-fn run_table(h: &mut String, s: &Value) {
+fn run_table(h: &mut Page<'_>, s: &Value) {
     let secs = s.get("seconds");
     let total = num(secs.and_then(|v| v.get("total")));
     let pin = num(s.get("points_in")) as u64;
@@ -231,7 +374,7 @@ fn run_table(h: &mut String, s: &Value) {
     h.push_str("</table>");
 }
 
-fn maps(h: &mut String, s: &Value, ov: &Overview, tiles: &[TileExtent]) -> Result<()> {
+fn maps(h: &mut Page<'_>, ov: &Overview, tiles: &TileBook) -> Result<()> {
     let _ = write!(
         h,
         "<h2>Overview</h2><p>{} × {} cells of {:.2} m; each cell shows its highest point. {} points.</p>",
@@ -254,8 +397,8 @@ fn maps(h: &mut String, s: &Value, ov: &Overview, tiles: &[TileExtent]) -> Resul
         );
     }
     h.push_str("</ul>");
-    let grid = tile_grid_svg(s, ov, tiles);
-    let png = |rgb: Vec<u8>| overview::png(&rgb, ov.width, ov.height).map(|p| data_uri(&p));
+    let grid = tile_grid_svg(ov, tiles);
+    let png = |rgb: Vec<u8>| overview::png(&rgb, ov.width, ov.height);
     figure(
         h,
         "overview-class",
@@ -300,23 +443,26 @@ fn maps(h: &mut String, s: &Value, ov: &Overview, tiles: &[TileExtent]) -> Resul
     Ok(())
 }
 
-fn figure(h: &mut String, id: &str, caption: &str, uri: &str, overlay: &str) {
+fn figure(h: &mut Page<'_>, id: &str, caption: &str, png: &[u8], overlay: &str) {
     let _ = write!(
         h,
-        "<figure id=\"{id}\"><figcaption>{caption}</figcaption><div class=\"map\"><img alt=\"{id}\" src=\"{uri}\">{overlay}</div></figure>"
+        "<figure id=\"{id}\"><figcaption>{caption}</figcaption><div class=\"map\"><img alt=\"{id}\" src=\""
     );
+    h.data_uri(png);
+    let _ = write!(h, "\">{overlay}</div></figure>");
 }
 
-fn tile_grid_svg(s: &Value, ov: &Overview, tiles: &[TileExtent]) -> String {
-    let info = tile_info(s);
+fn tile_grid_svg(ov: &Overview, tiles: &TileBook) -> String {
+    if tiles.outlines.is_empty() {
+        return String::new();
+    }
     let mut g = format!(
         "<svg viewBox=\"0 0 {} {}\" preserveAspectRatio=\"none\">",
         ov.width, ov.height
     );
-    for t in tiles {
+    for (t, secs) in &tiles.outlines {
         let [x, y, w, hh] = ov.pixel_rect(t.bounds);
         let split = t.name.contains("_q");
-        let secs = info.get(&t.name).map(|i| i.1).unwrap_or(0.0);
         let _ = write!(
             g,
             "<rect x=\"{x:.1}\" y=\"{y:.1}\" width=\"{w:.1}\" height=\"{hh:.1}\" fill=\"none\" stroke=\"{}\" stroke-width=\"1\" vector-effect=\"non-scaling-stroke\"{}><title>{}: {} points, {secs:.2} s</title></rect>",
@@ -330,60 +476,35 @@ fn tile_grid_svg(s: &Value, ov: &Overview, tiles: &[TileExtent]) -> String {
     g
 }
 
-/// Per tile: core points, buffer points... as (points, stage seconds summed).
-fn tile_info(s: &Value) -> std::collections::HashMap<String, (u64, f64, u64)> {
-    let mut m = std::collections::HashMap::new();
-    for t in s
-        .get("tile_list")
-        .and_then(Value::as_array)
-        .into_iter()
-        .flatten()
-    {
-        let Some(name) = t.get("name").and_then(Value::as_str) else {
-            continue;
-        };
-        let secs: f64 = t
-            .get("seconds")
-            .and_then(Value::as_object)
-            .map(|o| o.values().filter_map(Value::as_f64).sum())
-            .unwrap_or(0.0);
-        m.insert(
-            name.to_string(),
-            (
-                num(t.get("points")) as u64,
-                secs,
-                num(t.get("buffer_points")) as u64,
-            ),
-        );
-    }
-    m
-}
-
-fn tile_table(h: &mut String, s: &Value) {
-    let info = tile_info(s);
-    let mut v: Vec<_> = info.iter().collect();
-    v.sort_by(|a, b| b.1 .1.total_cmp(&a.1 .1).then(a.0.cmp(b.0)));
+fn tile_table(h: &mut Page<'_>, tiles: &TileBook) {
     let _ = write!(
         h,
-        "<h2>Tiles</h2><p>{} tiles; the {} slowest (stage seconds summed).</p><table><tr><th class=\"l\">tile</th><th>core points</th><th>buffer points</th><th>seconds</th><th>µs per core point</th></tr>",
-        v.len(),
-        v.len().min(15)
+        "<h2>Tiles</h2><p>{} tiles; the {} slowest (stage seconds summed).{}</p><table><tr><th class=\"l\">tile</th><th>core points</th><th>buffer points</th><th>seconds</th><th>µs per core point</th></tr>",
+        tiles.count,
+        tiles.slowest.len(),
+        if tiles.count > OUTLINE_MAX_TILES {
+            format!(" Tile outlines are drawn for regions of at most {OUTLINE_MAX_TILES} tiles; every tile is listed in the tile table ({}).", super::TILE_TABLE)
+        } else {
+            String::new()
+        }
     );
-    for (name, (p, secs, buf)) in v.iter().take(15) {
-        let _ = write!(
+    for r in &tiles.slowest {
+        let _ =
+            write!(
             h,
-            "<tr><td class=\"l\">{}{}</td><td>{}</td><td>{}</td><td>{secs:.2}</td><td>{:.2}</td></tr>",
-            esc(name),
-            if name.contains("_q") { " (split)" } else { "" },
-            thousands(*p),
-            thousands(*buf),
-            secs * 1e6 / (*p).max(1) as f64
+            "<tr><td class=\"l\">{}{}</td><td>{}</td><td>{}</td><td>{:.2}</td><td>{:.2}</td></tr>",
+            esc(&r.name),
+            if r.name.contains("_q") { " (split)" } else { "" },
+            thousands(r.points),
+            thousands(r.buffer_points),
+            r.seconds,
+            r.seconds * 1e6 / r.points.max(1) as f64
         );
     }
     h.push_str("</table>");
 }
 
-fn stage_table(h: &mut String, s: &Value) {
+fn stage_table(h: &mut Page<'_>, s: &Value) {
     let Some(st) = s.get("stages").and_then(Value::as_object) else {
         return;
     };
@@ -414,7 +535,7 @@ fn stage_table(h: &mut String, s: &Value) {
     }
 }
 
-fn memory(h: &mut String, s: &Value) {
+fn memory(h: &mut Page<'_>, s: &Value) {
     let peak = num(s.get("peak_rss_mb"));
     let budget = num(s.get("memory_budget_mb"));
     let pct = if budget > 0.0 {
@@ -449,7 +570,7 @@ fn memory(h: &mut String, s: &Value) {
     }
 }
 
-fn confusion(h: &mut String, ov: &Overview) {
+fn confusion(h: &mut Page<'_>, ov: &Overview) {
     let mut truth: Vec<u8> = ov.confusion.keys().map(|k| k.0).collect();
     truth.sort_unstable();
     truth.dedup();
@@ -506,7 +627,7 @@ fn confusion(h: &mut String, ov: &Overview) {
 
 /// Resident memory over the run (summary `memory_timeline`) against the budget, as an SVG
 /// line chart.
-fn memory_chart(h: &mut String, s: &Value, budget: f64) {
+fn memory_chart(h: &mut Page<'_>, s: &Value, budget: f64) {
     let pts: Vec<(f64, f64)> = s
         .get("memory_timeline")
         .and_then(Value::as_array)

@@ -137,8 +137,13 @@ pub struct Summary {
     /// Cross-tile stitching statistics (runs with the segment stage and stitching on).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub stitch: Option<crate::stitch::StitchStats>,
-    /// Written tiles, by name.
+    /// Written tiles, by name: every tile when there are at most [`TILE_LIST_INLINE`], else
+    /// empty (the tile table holds them all).
     pub tile_list: Vec<TileSummary>,
+    /// The tile table: one JSON line per written tile ([`TileSummary`]), in the order the tiles
+    /// were written (see [`TileTable`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tile_table: Option<String>,
     /// MCAP inputs: decoding, georeferencing, skipped clouds and dropped points.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub mcap: Vec<crate::io::mcap::McapReport>,
@@ -170,6 +175,72 @@ pub struct Summary {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub report_raster: Option<overview::Geometry>,
 }
+
+/// File name of the tile table in the output directory.
+pub const TILE_TABLE: &str = "tiles.jsonl";
+
+/// Most tiles listed in `summary.json` itself; a larger run lists them only in its tile table.
+/// A summary of a province run (10^5–10^6 tiles) would otherwise be hundreds of MB, built in
+/// memory at the end of the run.
+pub const TILE_LIST_INLINE: usize = 1000;
+
+/// The tile table being written: each booked tile is appended as one JSON line, so the run
+/// keeps no per-tile books in memory (only the first [`TILE_LIST_INLINE`], for the summary).
+pub struct TileTable {
+    path: std::path::PathBuf,
+    w: std::io::BufWriter<std::fs::File>,
+    rows: usize,
+    inline: Vec<TileSummary>,
+}
+
+impl TileTable {
+    /// Starts the table in `stage` (the run's staging directory).
+    pub fn create(stage: &std::path::Path) -> crate::error::Result<TileTable> {
+        let path = stage.join(TILE_TABLE);
+        let f = std::fs::File::create(&path).map_err(|e| crate::error::Error::io(&path, e))?;
+        Ok(TileTable {
+            path,
+            w: std::io::BufWriter::with_capacity(64 << 10, f),
+            rows: 0,
+            inline: Vec::new(),
+        })
+    }
+
+    /// Appends one tile.
+    pub fn push(&mut self, t: TileSummary) -> crate::error::Result<()> {
+        use std::io::Write;
+        serde_json::to_writer(&mut self.w, &t)
+            .map_err(std::io::Error::from)
+            .and_then(|_| self.w.write_all(b"\n"))
+            .map_err(|e| crate::error::Error::io(&self.path, e))?;
+        self.rows += 1;
+        if self.rows <= TILE_LIST_INLINE {
+            self.inline.push(t);
+        } else {
+            self.inline = Vec::new();
+        }
+        Ok(())
+    }
+
+    /// Tiles in the table.
+    pub fn rows(&self) -> usize {
+        self.rows
+    }
+
+    /// Flushes the table: its staged path, and the tiles by name when there are at most
+    /// [`TILE_LIST_INLINE`] (else none).
+    pub fn finish(mut self) -> crate::error::Result<(std::path::PathBuf, Vec<TileSummary>)> {
+        use std::io::Write;
+        self.w
+            .flush()
+            .and_then(|_| self.w.get_ref().sync_all())
+            .map_err(|e| crate::error::Error::io(&self.path, e))?;
+        self.inline.sort_by(|a, b| a.name.cmp(&b.name));
+        Ok((self.path, self.inline))
+    }
+}
+
+pub use crate::io::workspace::for_each_tile;
 
 /// One stage's cost over a run (summary.json `stages`).
 #[derive(Debug, Clone, Default, Serialize)]

@@ -178,6 +178,14 @@ impl<'a> Tiler<'a> {
     /// Marks input `file` as fully read and returns the tiles that became complete, column by
     /// column and largest first within a column (a deterministic order).
     pub fn file_done(&mut self, file: usize) -> Result<Vec<TileJob>> {
+        let ready = self.complete_after(file);
+        self.release(ready)
+    }
+
+    /// Marks input `file` as fully read and returns the cells that became complete, sorted
+    /// (column by column), without releasing them: [`Tiler::release`] them a column at a
+    /// time, so that a region completed at once (a one-file region) never holds every job.
+    pub fn complete_after(&mut self, file: usize) -> Vec<TileId> {
         self.file_done[file] = true;
         let r = reach(&self.files[file], self.layout);
         let grid = self.grid;
@@ -187,23 +195,26 @@ impl<'a> Tiler<'a> {
                 t.pending = t.pending.saturating_sub(1);
             }
         }
-        let ready: Vec<TileId> = {
-            let mut v: Vec<TileId> = self
-                .open
-                .iter()
-                .filter(|(_, t)| t.pending == 0)
-                .map(|(k, _)| *k)
-                .collect();
-            v.sort();
-            v
-        };
-        self.release(ready)
+        let mut v: Vec<TileId> = self
+            .open
+            .iter()
+            .filter(|(_, t)| t.pending == 0)
+            .map(|(k, _)| *k)
+            .collect();
+        v.sort();
+        v
+    }
+
+    /// Every cell still open (all inputs read), sorted; see [`Tiler::complete_after`].
+    pub fn still_open(&self) -> Vec<TileId> {
+        let mut v: Vec<TileId> = self.open.keys().copied().collect();
+        v.sort();
+        v
     }
 
     /// Releases every open tile (all inputs read).
     pub fn finish(&mut self) -> Result<Vec<TileJob>> {
-        let mut v: Vec<TileId> = self.open.keys().copied().collect();
-        v.sort();
+        let v = self.still_open();
         self.release(v)
     }
 
@@ -215,7 +226,10 @@ impl<'a> Tiler<'a> {
         std::mem::take(&mut self.releases)
     }
 
-    fn release(&mut self, ids: Vec<TileId>) -> Result<Vec<TileJob>> {
+    /// Releases the open cells `ids` (the ones listed by [`Tiler::complete_after`] or
+    /// [`Tiler::still_open`]) and returns their jobs, column by column and largest first within
+    /// a column.
+    pub fn release(&mut self, ids: Vec<TileId>) -> Result<Vec<TileJob>> {
         let mut jobs = Vec::new();
         self.last = None;
         // Neighbours are listed before any tile of the batch leaves `open`, so tiles released

@@ -57,6 +57,10 @@ const FIRST_BLOCK: usize = 2 << 10;
 struct Blocks {
     list: Vec<Vec<u8>>,
     len: usize,
+    /// Capacity of the blocks: what the set charges to its bound (a part's first block
+    /// holds a few records in a larger capacity, and a region of many open cells read in no
+    /// spatial order holds one per part and cell).
+    cap: usize,
 }
 
 impl Blocks {
@@ -77,8 +81,10 @@ impl Blocks {
         let first = self.list.len() == 1 && self.list[0].capacity() < BLOCK;
         if first {
             let b = &mut self.list[0];
+            let before = b.capacity();
             let cap = (2 * b.capacity()).clamp(b.len() + need, BLOCK.max(b.len() + need));
             b.reserve_exact(cap - b.len());
+            self.cap += b.capacity() - before;
         } else {
             let b = match (self.list.is_empty(), pool.pop()) {
                 (false, Some(b)) => b,
@@ -92,6 +98,7 @@ impl Blocks {
                     Vec::with_capacity(cap.max(need))
                 }
             };
+            self.cap += b.capacity();
             self.list.push(b);
         }
         let last = self.list.len() - 1;
@@ -190,9 +197,10 @@ impl SpillSet {
             Part::Core => (&mut s.core, &mut s.held.0),
             Part::Buffer => (&mut s.buf, &mut s.held.1),
         };
+        let before = v.cap;
         v.push(point_id, record, &mut self.pool);
         *n += 1;
-        self.buffered += 8 + record.len();
+        self.buffered += v.cap - before;
         if self.held_bytes() > self.limit_bytes {
             self.relieve()?;
         }
@@ -219,7 +227,7 @@ impl SpillSet {
             for b in &v.list {
                 f.write_all(b).map_err(|e| Error::io(&path, e))?;
             }
-            self.buffered -= v.len;
+            self.buffered -= v.cap;
             *flushed += *held;
             *held = 0;
             // Full blocks are kept for reuse up to the pool's share; the rest of the memory
@@ -242,7 +250,7 @@ impl SpillSet {
             .iter()
             .enumerate()
             .filter(|(_, s)| s.id.is_some())
-            .map(|(i, s)| (s.core.len + s.buf.len, i))
+            .map(|(i, s)| (s.core.cap + s.buf.cap, i))
             .collect();
         sizes.sort_by(|a, b| b.cmp(a));
         for (_, i) in sizes {
@@ -265,7 +273,7 @@ impl SpillSet {
                 kept: 0,
             });
         };
-        let held = self.slots[slot].core.len + self.slots[slot].buf.len;
+        let held = self.slots[slot].core.cap + self.slots[slot].buf.cap;
         let hand =
             self.handoff && self.outstanding.load(Ordering::Relaxed) + held <= self.limit_bytes / 2;
         if hand {
@@ -281,7 +289,7 @@ impl SpillSet {
             on_disk,
             tail: (held > 0).then(|| MemTail {
                 points: held,
-                bytes: bytes.len,
+                bytes: bytes.cap,
                 blocks: bytes.list,
                 outstanding: self.outstanding.clone(),
             }),
