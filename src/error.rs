@@ -77,6 +77,18 @@ pub enum Error {
     /// An internal invariant was violated (a bug): the run stops rather than lose data.
     #[error("internal error: {0}")]
     Internal(String),
+    /// The run finished and its outputs are complete, but its peak resident memory went over
+    /// the memory budget it was given: a job under a hard cap of that size would have been
+    /// killed. The budget plan missed memory this input needs.
+    #[error("the run finished and its outputs are complete, but its peak memory ({peak_mb:.0} MiB) went over the memory budget ({budget_mb} MiB): under a hard cap of that size it would have been killed. The budget plan missed memory this input needs; raise --memory-budget, and please report it with {}", summary.display())]
+    OverBudget {
+        /// Peak resident set size, MiB.
+        peak_mb: f64,
+        /// The budget, MiB.
+        budget_mb: u64,
+        /// The run's summary.json.
+        summary: PathBuf,
+    },
     /// A `keep_going` run finished, but left inputs or tiles out (listed in its summary).
     #[error("the run finished without {skipped} unreadable input(s) and {failed} failed tile(s) ({points} core points not written); they are listed in {}", summary.display())]
     Incomplete {
@@ -118,6 +130,7 @@ impl Error {
     pub fn exit_code(&self) -> u8 {
         match self {
             Error::Incomplete { .. } => 3,
+            Error::OverBudget { .. } => 4,
             e if e.is_usage() => 2,
             _ => 1,
         }

@@ -1,5 +1,6 @@
 //! Thin binary: parse → command → exit code (0 ok, 1 processing error, 2 usage or
-//! configuration error, 3 a `--keep-going` run that finished but left inputs or tiles out).
+//! configuration error, 3 a `--keep-going` run that finished but left inputs or tiles out,
+//! 4 a run that finished complete but over its memory budget).
 //! Each command lives in its own file under `commands/`.
 
 mod commands;

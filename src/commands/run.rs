@@ -53,6 +53,22 @@ pub fn run_task(
                 s.failed_tiles.len()
             );
         }
+        let dir = tessera::pipeline::task::task_dir(plan, index);
+        within_budget(&s, &dir.join("summary.json"))?;
+    }
+    Ok(())
+}
+
+/// A run that finished over its memory budget is an error (exit code 4) although its outputs
+/// are complete: a CI job under a hard cap must learn that the cap would have killed it.
+fn within_budget(s: &tessera::report::Summary, summary: &Path) -> anyhow::Result<()> {
+    if s.memory_budget_mb > 0 && s.peak_rss_mb > s.memory_budget_mb as f64 {
+        return Err(tessera::Error::OverBudget {
+            peak_mb: s.peak_rss_mb,
+            budget_mb: s.memory_budget_mb,
+            summary: summary.to_path_buf(),
+        }
+        .into());
     }
     Ok(())
 }
@@ -78,7 +94,7 @@ pub fn stitch(dir: &Path, overwrite: bool, quiet: bool) -> anyhow::Result<()> {
         }
         .into());
     }
-    Ok(())
+    within_budget(&s, &dir.join("summary.json"))
 }
 
 /// Runs the pipeline with `cfg` (also used by `demo`).
@@ -107,5 +123,5 @@ pub fn process(inputs: &[PathBuf], out: &Path, cfg: &Config, quiet: bool) -> any
         }
         .into());
     }
-    Ok(())
+    within_budget(&s, &out.join("summary.json"))
 }
