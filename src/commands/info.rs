@@ -30,6 +30,24 @@ pub fn info(file: &Path) -> anyhow::Result<()> {
         "scale: {} {} {}; offset: {} {} {}",
         t.x.scale, t.y.scale, t.z.scale, t.x.offset, t.y.offset, t.z.offset
     );
+    // What the first points look like from above (never fails the command: a file whose points
+    // cannot be sampled still has its header shown).
+    use tessera::io::detect::{detect, Sample, SAMPLE_POINTS};
+    match Sample::of_file(&f, SAMPLE_POINTS).map(|s| detect(&s)) {
+        Ok(Some(d)) => println!(
+            "looks: {} ({}; {} points sampled, {:.0} % multiple returns, scan angles within {:.0}°)",
+            match d.platform {
+                tessera::io::detect::Platform::Airborne => "airborne",
+                tessera::io::detect::Platform::Mobile => "mobile or terrestrial",
+            },
+            d.reason,
+            d.sampled_points,
+            100.0 * d.multiple_returns,
+            d.scan_angle_p95_deg
+        ),
+        Ok(None) => println!("looks: too few points to tell"),
+        Err(e) => println!("looks: cannot sample the points ({e})"),
+    }
     for v in h.all_vlrs() {
         println!(
             "vlr: {} {} \"{}\" ({} bytes)",

@@ -446,7 +446,7 @@ fn point_count(path: &Path, raw: &las::raw::Header, present: Present) -> Result<
 ///
 /// `vlrs`: the number of VLRs to read instead of the header's (a header that announces more
 /// than there are, [`crate::io::guard::Structure::vlrs_present`]).
-fn open_reader(path: &Path, vlrs: Option<u32>) -> Result<Reader> {
+pub(crate) fn open_reader(path: &Path, vlrs: Option<u32>) -> Result<Reader> {
     let f = crate::io::files::open_regular(path)?;
     let patch = vlrs.map(|n| (100u64, n.to_le_bytes()));
     let f = BufReader::new(Patched {

@@ -4,6 +4,7 @@
 pub mod attributes;
 pub mod copc;
 pub mod crs;
+pub mod detect;
 pub mod extra;
 pub mod files;
 pub mod guard;

@@ -155,9 +155,12 @@ impl<'a, R: Read + Seek + Send + Sync + 'a> LasZipDecompressor<'a, R> {
                         self.record_decompressor.record_count()
                     }
                     (None, _) => {
-                        // This should not be possible, the `new` method should ensure
-                        // we have the chunk table if we need one
-                        panic!("Variable-size chunks, but no chunk table");
+                        // `new` reads the chunk table when it can; a file that announces
+                        // variable chunks without one is refused here, not by a panic.
+                        return Err(std::io::Error::new(
+                            std::io::ErrorKind::InvalidData,
+                            "variable-size chunks, but no chunk table",
+                        ));
                     }
                 }
             } else if self.vlr.compressor == CompressorType::PointWise {
