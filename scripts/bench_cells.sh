@@ -23,8 +23,9 @@ GS='stages.run=["ground","segment"]'
 measure() {
   local name=$1; shift
   local t
-  t=$( { /usr/bin/time -f "%e %M" "$@" >/dev/null 2>"$W/err"; } 2>&1 | tail -1) \
-    || { echo "$name failed:"; tail -3 "$W/err"; exit 1; }
+  /usr/bin/time -o "$W/time" -f "%e %M" "$@" >/dev/null 2>"$W/err" \
+    || { echo "$name failed:" >&2; tail -3 "$W/err" >&2; exit 1; }
+  t=$(tail -1 "$W/time")
   echo "$name ${t% *} $(( ${t#* } / 1024 ))"
 }
 
