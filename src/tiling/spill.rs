@@ -45,9 +45,9 @@ pub type TileMap<V> = HashMap<TileId, V, BuildHasherDefault<FastHasher>>;
 /// Capacity of a full buffer block, bytes.
 const BLOCK: usize = 256 << 10;
 /// Capacity of a part's first block, bytes: it doubles up to [`BLOCK`], so the many tiles that
-/// receive few points do not each hold a whole block. Every open cell holds one per part while
-/// the inputs are read, and the budget counts the bytes used, not this capacity: at 16 KiB a
-/// region of 10,000 open 10 m cells held ~16 KB per cell more than it was charged.
+/// receive few points do not each hold a whole block. The bound charges capacity, first blocks
+/// included: a region read in no spatial order holds one per part in every cell, and flushes
+/// small parts more often rather than grow past its bound.
 const FIRST_BLOCK: usize = 2 << 10;
 
 /// The buffered records of one slot part, in blocks holding whole records. Appending never
