@@ -435,8 +435,10 @@ pub(crate) fn finish_class_files(
 ) -> Result<()> {
     let t = Instant::now();
     // The tiles in batches, read from the tile table: no list of every tile in memory.
-    let table =
-        serde_json::json!({ "tile_table": summary.tile_table, "tile_list": summary.tile_list });
+    let table = match &summary.tile_table {
+        Some(name) => serde_json::json!({ "tile_table": name }),
+        None => serde_json::json!({ "tile_list": summary.tile_list }),
+    };
     let mut batch: Vec<(String, PathBuf)> = Vec::new();
     let dir = out.path().to_path_buf();
     crate::report::for_each_tile(&dir, &table, |t| {

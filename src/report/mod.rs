@@ -216,7 +216,8 @@ impl TileTable {
         self.rows += 1;
         if self.rows <= TILE_LIST_INLINE {
             self.inline.push(t);
-        } else {
+        } else if self.rows == TILE_LIST_INLINE + 1 {
+            // Past the inline limit the table alone lists the tiles.
             self.inline = Vec::new();
         }
         Ok(())
